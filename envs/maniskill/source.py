@@ -1,0 +1,175 @@
+"""Source demos on ManiSkill: the motion-planning demonstrator and trajectory files.
+
+ManiSkill's motion planners drive ``pd_joint_pos``; ManiSkill's own ``replay_trajectory``
+converts their trajectories to ``pd_ee_delta_pose``. A user's file goes through the same
+reader: a ``.h5`` with its ``.json`` beside it, as ManiSkill's RecordEpisode writes them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from envs.maniskill.tasks import TASKS
+from mimicgen_pipe.errors import InputError
+
+CONTROL_MODE = "pd_ee_delta_pose"
+
+
+@dataclass(frozen=True)
+class TrajectoryFileEpisode:
+    """One episode of a trajectory file: its reset seed, actions (T, 7) float32 and the
+    ManiSkill state dict at the first step (name -> (1, D) arrays)."""
+
+    name: str
+    seed: int
+    actions: np.ndarray
+    initial_state: dict
+
+
+def _initial_state(group: h5py.Group) -> dict:
+    out: dict = {}
+    for kind in ("actors", "articulations"):
+        out[kind] = {n: np.asarray(d[0:1], dtype=np.float32) for n, d in group[kind].items()}
+    return out
+
+
+def read_trajectory_file(path: str | os.PathLike, task: str) -> list[TrajectoryFileEpisode]:
+    """Read and check every episode of a ManiSkill trajectory file before any simulation.
+    Raises InputError naming the file and key for a wrong control mode, env, missing key,
+    wrong action shape or non-finite value."""
+    path = Path(path)
+    meta_path = path.with_suffix(".json")
+    if not path.exists():
+        raise InputError(f"{path}: trajectory file not found")
+    if not meta_path.exists():
+        raise InputError(f"{meta_path}: the .json written beside the .h5 is missing")
+    meta = json.loads(meta_path.read_text())
+    env_info = meta.get("env_info", {})
+    mode = env_info.get("env_kwargs", {}).get("control_mode")
+    if mode != CONTROL_MODE:
+        raise InputError(
+            f"{meta_path}: env_info.env_kwargs.control_mode is {mode!r}, expected {CONTROL_MODE!r} "
+            "(convert with python -m mani_skill.trajectory.replay_trajectory -c pd_ee_delta_pose)"
+        )
+    spec = TASKS[task]
+    if env_info.get("env_id") not in (spec.env_id, spec.base_env_id):
+        raise InputError(
+            f"{meta_path}: env_info.env_id is {env_info.get('env_id')!r}, expected "
+            f"{spec.base_env_id!r} for task {task}"
+        )
+    episodes = []
+    with h5py.File(path, "r") as f:
+        for ep in meta.get("episodes", []):
+            name = f"traj_{ep['episode_id']}"
+            if name not in f:
+                raise InputError(f"{path}: {name} listed in the .json but missing")
+            g = f[name]
+            for key in ("actions", "env_states/actors", "env_states/articulations"):
+                if key not in g:
+                    raise InputError(f"{path}: {name}/{key} missing")
+            actions = np.asarray(g["actions"], dtype=np.float32)
+            if actions.ndim != 2 or actions.shape[1] != 7:
+                raise InputError(f"{path}: {name}/actions has shape {actions.shape}, expected (T, 7)")
+            state = _initial_state(g["env_states"])
+            flat = [actions] + [v for d in state.values() for v in d.values()]
+            if not all(np.isfinite(a).all() for a in flat):
+                raise InputError(f"{path}: {name}: NaN or infinite action or state")
+            seed = ep.get("episode_seed", ep.get("reset_kwargs", {}).get("seed", -1))
+            episodes.append(TrajectoryFileEpisode(name, int(seed), actions, state))
+    if not episodes:
+        raise InputError(f"{path}: no episodes")
+    return episodes
+
+
+def run_motion_planner(
+    task: str, robot: str, num_demos: int, seed: int, out_dir: Path, max_tries: int
+) -> tuple[Path, int]:
+    """Run ManiSkill's motion-planning demonstrator until ``num_demos`` successes (or
+    ``max_tries`` seeds), keeping successes only, then convert to pd_ee_delta_pose.
+    Returns (converted .h5, number of failed plans)."""
+    # The planners and the converter run in a child process: mplib and the converter's
+    # multiprocessing are kept out of the stage's own process.
+    code = (
+        "import sys; from envs.maniskill.source import _plan_child; "
+        "print(_plan_child(*sys.argv[1:]))"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", code, task, robot, str(num_demos), str(seed), str(out_dir),
+         str(max_tries)],
+        capture_output=True, text=True, check=False,
+    )
+    if res.returncode != 0:
+        raise RuntimeError(f"motion planning failed:\n{res.stderr[-4000:]}")
+    failed = int(res.stdout.strip().splitlines()[-1])
+    raw = out_dir / "planned.h5"
+    conv = subprocess.run(
+        [sys.executable, "-m", "mani_skill.trajectory.replay_trajectory", "--traj-path",
+         str(raw), "-c", CONTROL_MODE, "-o", "none", "--save-traj", "-b", "physx_cpu"],
+        capture_output=True, text=True, check=False,
+    )
+    if conv.returncode != 0:
+        raise RuntimeError(f"conversion to {CONTROL_MODE} failed:\n{conv.stderr[-4000:]}")
+    converted = sorted(out_dir.glob(f"planned.*{CONTROL_MODE}*.h5"))
+    if not converted:
+        raise RuntimeError(f"conversion wrote no file in {out_dir}")
+    return converted[0], failed
+
+
+def _plan_child(task: str, robot: str, num_demos: str, seed: str, out_dir: str,
+                max_tries: str) -> int:
+    os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
+    import gymnasium as gym
+    import mani_skill.envs  # noqa: F401  registers the tasks
+    from mani_skill.examples.motionplanning.panda.run import MP_SOLUTIONS
+    from mani_skill.utils.wrappers.record import RecordEpisode
+
+    spec = TASKS[task]
+    env = gym.make(spec.base_env_id, obs_mode="none", control_mode="pd_joint_pos",
+                   sim_backend="physx_cpu", render_backend="none", robot_uids=robot)
+    env = RecordEpisode(env, output_dir=out_dir, trajectory_name="planned", save_video=False,
+                        source_type="motionplanning", record_reward=False, save_on_reset=False)
+    solve = MP_SOLUTIONS[spec.base_env_id]
+    kept = failed = 0
+    for s in range(int(seed), int(seed) + int(max_tries)):
+        try:
+            res = solve(env, seed=s)
+        except Exception:  # a planner exception is a failed demo, as in ManiSkill's runner
+            res = -1
+        ok = res != -1 and bool(res[-1]["success"].item())
+        env.flush_trajectory(save=ok)
+        kept, failed = kept + ok, failed + (not ok)
+        if kept == int(num_demos):
+            break
+    env.close()
+    return failed
+
+
+def initial_state(env, episode: TrajectoryFileEpisode) -> np.ndarray:
+    """The env's flat state for an episode's first step. A file recorded with another
+    Panda variant (e.g. panda_wristcam: same arm, plus a camera) is mapped onto this env's
+    robot when the articulation state has the same size."""
+    import torch
+
+    state = {k: dict(v) for k, v in episode.initial_state.items()}
+    robot = env.unwrapped.agent.robot.name
+    arts = state["articulations"]
+    if robot not in arts and len(arts) == 1:
+        (name, value), = arts.items()
+        expected = env.unwrapped.agent.robot.get_state().shape[-1]
+        if value.shape[-1] != expected:
+            raise InputError(
+                f"{episode.name}: articulation {name!r} has state size {value.shape[-1]}, "
+                f"expected {expected} for robot {robot!r}"
+            )
+        arts = {robot: value}
+    state["articulations"] = arts
+    env.set_state_dict({k: {n: torch.as_tensor(v) for n, v in d.items()} for k, d in state.items()})
+    return env.get_state()

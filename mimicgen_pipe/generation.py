@@ -1,0 +1,261 @@
+"""The MimicGen generation method (paper 3.2, L, M): segment transform, interpolation,
+source selection, action noise, and one generation attempt over an env protocol object."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+import numpy as np
+
+from mimicgen_pipe import poses
+from mimicgen_pipe.controller import clip_actions
+from mimicgen_pipe.segments import segment_bounds
+from mimicgen_pipe.taskspec import TaskSpec
+
+
+class Env(Protocol):
+    """What the generator needs from a simulator back end (see DESIGN.md, env protocol).
+    All poses are 4x4 in the world frame [m]."""
+
+    def reset(self, seed: int, variant: str) -> None: ...
+    def eef_pose(self) -> np.ndarray: ...
+    def object_poses(self) -> dict[str, np.ndarray]: ...
+    def step(self, action: np.ndarray) -> None: ...
+    def subtask_signals(self) -> dict[str, bool]: ...
+    def is_success(self) -> bool: ...
+    def get_state(self) -> np.ndarray: ...
+    def set_state(self, state: np.ndarray) -> None: ...
+    def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray: ...
+    def action_to_target_pose(self, action: np.ndarray) -> np.ndarray: ...
+
+
+def transform_segment(
+    target_poses: np.ndarray, src_object_pose: np.ndarray, new_object_pose: np.ndarray
+) -> np.ndarray:
+    """Re-target a source segment to a new object pose (paper L).
+
+    target_poses: (K, 4, 4) controller targets T_W^C in the world frame.
+    src_object_pose / new_object_pose: (4, 4) world poses of the reference object at the start
+    of the source segment and in the new scene. Returns T_W^O' (T_W^O)^-1 T_W^C, which keeps
+    every target's pose relative to the object.
+    """
+    return new_object_pose @ poses.pose_inv(src_object_pose) @ target_poses
+
+
+def interpolation(
+    from_pose: np.ndarray, to_pose: np.ndarray, n_interp: int, n_fixed: int
+) -> np.ndarray:
+    """(n_interp + n_fixed, 4, 4) poses: n_interp poses from ``from_pose`` to ``to_pose``
+    inclusive (linear in position, slerp in rotation), then ``to_pose`` held n_fixed times
+    (paper M.2)."""
+    if n_interp < 0 or n_fixed < 0:
+        raise ValueError("n_interp and n_fixed must be >= 0")
+    alphas = np.linspace(0.0, 1.0, n_interp) if n_interp > 1 else np.ones(n_interp)
+    alphas = np.concatenate([alphas, np.ones(n_fixed)])
+    out = np.zeros((len(alphas), 4, 4))
+    out[:, :3, 3] = (1 - alphas)[:, None] * from_pose[:3, 3] + alphas[:, None] * to_pose[:3, 3]
+    out[:, :3, :3] = poses.slerp_matrix(from_pose[:3, :3], to_pose[:3, :3], alphas)
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def pose_distance(candidates: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Paper M.3's distance from each candidate (N, 4, 4) to ``pose`` (4, 4): L2 position
+    distance [m] plus the angle [rad] of the relative rotation."""
+    dpos = np.linalg.norm(candidates[:, :3, 3] - pose[:3, 3], axis=-1)
+    return dpos + poses.rotation_angle(candidates[:, :3, :3], pose[:3, :3])
+
+
+SelectionStrategy = Literal["random", "nearest_neighbor"]
+
+
+def select_source(
+    strategy: SelectionStrategy,
+    candidate_object_poses: np.ndarray,
+    current_object_pose: np.ndarray,
+    rng: np.random.Generator,
+    nn_k: int = 3,
+) -> int:
+    """Index of the source demo to follow (paper M.3).
+
+    candidate_object_poses: (N, 4, 4) world pose of the reference object at the start of each
+    source demo's segment; current_object_pose: (4, 4) in the new scene. "random" draws
+    uniformly; "nearest_neighbor" ranks by :func:`pose_distance` and draws uniformly from the
+    first ``nn_k``.
+    """
+    n = len(candidate_object_poses)
+    if strategy == "random":
+        return int(rng.integers(n))
+    if strategy == "nearest_neighbor":
+        order = np.argsort(pose_distance(candidate_object_poses, current_object_pose), kind="stable")
+        return int(order[rng.integers(min(nn_k, n))])
+    raise ValueError(f"unknown selection strategy {strategy!r}")
+
+
+def add_action_noise(actions: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """actions (K, 7) plus sigma * N(0, 1) on every dimension but the gripper (paper M.4)."""
+    noisy = np.array(actions, dtype=np.float64, copy=True)
+    noisy[:, :-1] += sigma * rng.standard_normal((len(noisy), noisy.shape[1] - 1))
+    return noisy
+
+
+@dataclass(frozen=True)
+class GenerationConfig:
+    """The method's knobs (paper M.6 defaults)."""
+
+    action_noise: float = 0.05
+    n_interp: int = 5
+    n_fixed: int = 0
+    selection: SelectionStrategy = "random"
+    nn_k: int = 3
+    per_subtask: bool = False
+
+
+@dataclass(frozen=True)
+class SourceDemos:
+    """Parsed source demos, concatenated over episodes.
+
+    target_poses: (S, 4, 4) controller targets, world frame. gripper: (S,) gripper actions.
+    object_poses: object name -> (S, 4, 4) world poses observed before each step.
+    episode_ends: (N,) cumulative exclusive ends. term_index: (N, M-1) detected subtask ends,
+    relative to each episode's start.
+    """
+
+    target_poses: np.ndarray
+    gripper: np.ndarray
+    object_poses: Mapping[str, np.ndarray]
+    episode_ends: np.ndarray
+    term_index: np.ndarray
+
+    @property
+    def episode_starts(self) -> np.ndarray:
+        return np.concatenate([[0], self.episode_ends[:-1]])
+
+    @property
+    def lengths(self) -> np.ndarray:
+        return np.diff(np.concatenate([[0], self.episode_ends]))
+
+
+@dataclass
+class Attempt:
+    """One generation attempt: per-step arrays (T, ...) and per-episode fields."""
+
+    steps: dict[str, np.ndarray]
+    success: bool
+    failed_subtask: int  # index of the first subtask not achieved; -1 on success
+    source_demo: np.ndarray  # (M,) source demo followed in each subtask
+    initial_state: np.ndarray
+    initial_object_poses: np.ndarray  # (n_objects, 4, 4) world
+
+
+def run_attempt(
+    env: Env,
+    sources: SourceDemos,
+    spec: TaskSpec,
+    config: GenerationConfig,
+    variant: str,
+    seed: int,
+) -> Attempt:
+    """One generation attempt (paper Fig. 2): reset the scene, then for each subtask select a
+    source demo, transform its segment to the reference object's current pose, prepend the
+    interpolation from the current end-effector pose, and execute it as noisy delta-pose
+    actions. Success is the task's success after the last step."""
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed, variant=variant)
+    initial_state = env.get_state()
+    obj_now = env.object_poses()
+    initial_object_poses = np.stack([obj_now[o] for o in spec.objects])
+    offsets = [int(rng.integers(s.term_offset_range[0], s.term_offset_range[1] + 1))
+               for s in spec.subtasks[:-1]]
+    starts, lengths = sources.episode_starts, sources.lengths
+    bounds = np.stack([segment_bounds(sources.term_index[j], offsets, int(lengths[j]))
+                       for j in range(len(lengths))])  # (N, M, 2)
+
+    recorder = StepRecorder(spec.objects)
+    chosen = np.full(len(spec.subtasks), -1, dtype=np.int64)
+    reached = np.zeros(len(spec.subtasks), dtype=bool)
+    demo = -1
+    for i, sub in enumerate(spec.subtasks):
+        ref_now = obj_now[sub.reference_object]
+        if demo < 0 or config.per_subtask:
+            seg_starts = starts + bounds[:, i, 0]
+            candidates = sources.object_poses[sub.reference_object][seg_starts]
+            demo = select_source(config.selection, candidates, ref_now, rng, config.nn_k)
+        chosen[i] = demo
+        s, e = starts[demo] + bounds[demo, i]
+        seg = transform_segment(
+            sources.target_poses[s:e], sources.object_poses[sub.reference_object][s], ref_now
+        )
+        grip = sources.gripper[s:e]
+        interp = interpolation(env.eef_pose(), seg[0], config.n_interp, config.n_fixed)
+        targets = np.concatenate([interp, seg])
+        grips = np.concatenate([np.full(len(interp), grip[0]), grip])
+        noise = config.action_noise * rng.standard_normal((len(targets), 6))
+        for k in range(len(targets)):
+            eef = env.eef_pose()
+            action = env.target_pose_to_action(targets[k], grips[k])
+            action[:6] += noise[k]
+            action = clip_actions(action).astype(np.float32)
+            sig = recorder.record(env, eef, obj_now, action, targets[k])
+            if sub.term_signal is not None and sig[sub.term_signal]:
+                reached[i] = True
+            env.step(action)
+            obj_now = env.object_poses()
+        if sub.term_signal is not None and env.subtask_signals()[sub.term_signal]:
+            reached[i] = True
+    success = bool(env.is_success())
+    reached[-1] = success
+    failed = -1 if success else int(np.argmin(reached))
+    steps = recorder.arrays()
+    return Attempt(steps, success, failed, chosen, initial_state, initial_object_poses)
+
+
+class StepRecorder:
+    """Collects the per-step record of an episode, observed before each step's action:
+    actions, eef_pose, target_pose, gripper, env_state, object_poses/<obj>,
+    subtask_signals/<name>."""
+
+    def __init__(self, objects: tuple[str, ...]) -> None:
+        self.objects = objects
+        self.rows: dict[str, list] = {}
+
+    def record(
+        self,
+        env: Env,
+        eef: np.ndarray,
+        object_poses: Mapping[str, np.ndarray],
+        action: np.ndarray,
+        target: np.ndarray,
+    ) -> dict[str, bool]:
+        """Append one step; returns the subtask signals it recorded."""
+        sig = env.subtask_signals()
+        row = {"actions": action, "eef_pose": eef, "target_pose": target,
+               "env_state": env.get_state()}
+        row.update({f"object_poses/{o}": object_poses[o] for o in self.objects})
+        row.update({f"subtask_signals/{n}": v for n, v in sig.items()})
+        for key, value in row.items():
+            self.rows.setdefault(key, []).append(value)
+        return sig
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {k: np.asarray(v) for k, v in self.rows.items()}
+        if "actions" in out:
+            out["gripper"] = out["actions"][:, -1].astype(np.float32)
+        return out
+
+
+def replay_actions(
+    env: Env, initial_state: np.ndarray, actions: np.ndarray, objects: tuple[str, ...]
+) -> tuple[dict[str, np.ndarray], bool]:
+    """Restore ``initial_state``, execute ``actions`` (T, 7) and record every step, with the
+    controller target each action implies (paper M.1). Returns (steps, task success)."""
+    env.set_state(initial_state)
+    recorder = StepRecorder(objects)
+    for action in np.asarray(actions, dtype=np.float32):
+        eef = env.eef_pose()
+        target = env.action_to_target_pose(action)
+        recorder.record(env, eef, env.object_poses(), action, target)
+        env.step(action)
+    return recorder.arrays(), bool(env.is_success())

@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Sets up a fresh machine: the Vulkan driver SAPIEN needs, a virtualenv at .venv
+# and the pinned Python dependencies (requirements.txt). Idempotent.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+install_vulkan() {
+  # SAPIEN creates render materials even for state-only simulation, so it
+  # needs a Vulkan ICD. Debian 12's Mesa 22.3 lavapipe lacks
+  # VK_KHR_external_semaphore_fd; Mesa 25 from bookworm-backports has it.
+  if [ -r /etc/os-release ] && grep -q '^VERSION_CODENAME=bookworm' /etc/os-release; then
+    if ! dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null | grep -q '^25'; then
+      local sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo"
+      local list=/etc/apt/sources.list.d/bookworm-backports.sources
+      if [ ! -e "$list" ]; then
+        local mirror
+        mirror=$(awk '/^URIs:/{print $2; exit}' /etc/apt/sources.list.d/debian.sources 2>/dev/null || true)
+        [ -n "$mirror" ] || mirror=http://deb.debian.org/debian
+        printf 'Types: deb\nURIs: %s\nSuites: bookworm-backports\nComponents: main\nSigned-By: /usr/share/keyrings/debian-archive-keyring.gpg\n' \
+          "$mirror" | $sudo tee "$list" >/dev/null
+      fi
+      $sudo apt-get update -qq
+      DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq -t bookworm-backports \
+        mesa-vulkan-drivers libvulkan1 >/dev/null
+    fi
+  elif ! ldconfig -p 2>/dev/null | grep -q libvulkan.so.1; then
+    echo "setup: no Vulkan loader found. SAPIEN needs a Vulkan driver even without a GPU:" >&2
+    echo "  install libvulkan1 and Mesa >= 24.3 lavapipe (mesa-vulkan-drivers), or a GPU driver." >&2
+    exit 1
+  fi
+}
+
+install_venv() {
+  local py=${PYTHON:-python3.11}
+  command -v "$py" >/dev/null || py=python3
+  [ -x .venv/bin/python ] || "$py" -m venv .venv
+  .venv/bin/pip install -q --upgrade pip
+  # torch first and alone: pinned to the CPU wheel; anything that pulls an
+  # unpinned torch later then finds it satisfied instead of fetching CUDA.
+  .venv/bin/pip install -q "torch==2.13.0"
+  .venv/bin/pip install -q -r requirements.txt
+  .venv/bin/pip install -q --no-deps -e .
+}
+
+install_vulkan
+install_venv
+echo "setup: done (.venv ready; activate with: source .venv/bin/activate)"

@@ -1,0 +1,67 @@
+"""parse: split every source demo into object-centric subtask segments."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+import envs
+from mimicgen_pipe import layout
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.params import load_params
+from mimicgen_pipe.segments import split_into_segments, validate_segments
+from mimicgen_pipe.store import read_store, write_store
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    p.add_argument("--source", help="source store (default: data/source/<task>.zarr)")
+    p.add_argument("--out", help="parsed store (default: data/parsed/<task>.zarr)")
+
+
+def run(args: argparse.Namespace) -> None:
+    params = load_params(args.params)
+    spec = envs.task_spec(params.backend, params.task)
+    src_path = Path(args.source or layout.source_store(params.task))
+    out = Path(args.out or layout.parsed_store(params.task))
+    signals = sorted({s.term_signal for s in spec.subtasks if s.term_signal})
+    pose_keys = ["eef_pose", "target_pose"] + [f"object_poses/{o}" for o in spec.objects]
+    store = read_store(
+        src_path,
+        required=["actions", "gripper", *pose_keys, *[f"subtask_signals/{s}" for s in signals]],
+    )
+    if store.attrs.get("task") != params.task:
+        raise InputError(f"{src_path}: attrs.task is {store.attrs.get('task')!r}, "
+                         f"expected {params.task!r}")
+    for key in pose_keys + ["actions"]:
+        bad = ~np.isfinite(store.data[key]).all(axis=-1)
+        if bad.any():
+            step = int(np.argmax(bad))
+            ep = int(np.searchsorted(store.episode_ends, step, side="right"))
+            raise InputError(f"{src_path}: data/{key}: NaN at step {step} (episode {ep})")
+    term_index = []
+    for i in range(store.n_episodes):
+        ep = store.episode(i)
+        sig = {s: ep[f"subtask_signals/{s}"] for s in signals}
+        try:
+            ends = split_into_segments(sig, spec.subtasks)
+        except ValueError as exc:
+            raise InputError(f"{src_path}: episode {i}: {exc}") from exc
+        why = validate_segments(ends, len(ep["actions"]), spec.subtasks)
+        if why:
+            raise InputError(f"{src_path}: episode {i}: {why}")
+        term_index.append(ends)
+    steps = [store.episode(i) for i in range(store.n_episodes)]
+    episodes = dict(store.episodes)
+    episodes["subtask_term_index"] = np.asarray(term_index, np.int64).reshape(store.n_episodes, -1)
+    attrs = dict(store.attrs)
+    attrs["subtasks"] = [
+        {"name": s.name, "reference_object": s.reference_object, "term_signal": s.term_signal,
+         "term_offset_range": list(s.term_offset_range)} for s in spec.subtasks
+    ]
+    write_store(out, steps, episodes, attrs)
+    lengths = np.diff(np.concatenate([[0], store.episode_ends]))
+    print(f"parse: {store.n_episodes} demos, subtask ends {episodes['subtask_term_index'].tolist()}"
+          f" of lengths {lengths.tolist()} -> {out}")
