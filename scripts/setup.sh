@@ -30,16 +30,21 @@ install_vulkan() {
   fi
 }
 
+pip_quiet() {
+  # pip's notes about unused local index locations are noise here.
+  .venv/bin/pip -q --disable-pip-version-check "$@" 2>&1 | { grep -v '^WARNING: Location' || true; }
+  return "${PIPESTATUS[0]}"
+}
+
 install_venv() {
   local py=${PYTHON:-python3.11}
   command -v "$py" >/dev/null || py=python3
   [ -x .venv/bin/python ] || "$py" -m venv .venv
-  .venv/bin/pip install -q --upgrade pip
   # torch first and alone: pinned to the CPU wheel; anything that pulls an
   # unpinned torch later then finds it satisfied instead of fetching CUDA.
-  .venv/bin/pip install -q "torch==2.13.0"
-  .venv/bin/pip install -q -r requirements.txt
-  .venv/bin/pip install -q --no-deps -e .
+  pip_quiet install "torch==2.13.0"
+  pip_quiet install -r requirements.txt
+  pip_quiet install --no-deps -e .
 }
 
 install_vulkan

@@ -45,7 +45,7 @@ STACK_CUBE = ManiSkillTask(
         name="stack_cube",
         objects=("cubeA", "cubeB"),
         subtasks=(
-            SubtaskSpec("grasp_cubeA", "cubeA", "grasp_cubeA", (10, 20)),
+            SubtaskSpec("grasp_cubeA", "cubeA", "grasp_cubeA", (20, 25)),
             SubtaskSpec("place_on_cubeB", "cubeB", None),
         ),
         reset_bounds={

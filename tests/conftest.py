@@ -1,0 +1,46 @@
+"""Shared fixtures. Simulator tests are marked ``sim``; they share one small end-to-end run
+of the real pipeline (source -> parse -> generate) made once per session."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
+REPO = Path(__file__).resolve().parents[1]
+
+
+def cli(*args: str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
+    """Run ``mimicgen-pipe`` as a user would, in ``cwd``."""
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONWARNINGS="ignore")
+    res = subprocess.run([sys.executable, "-m", "mimicgen_pipe.cli", *args], cwd=cwd, env=env,
+                         capture_output=True, text=True)
+    if check and res.returncode != 0:
+        raise AssertionError(f"mimicgen-pipe {' '.join(args)} failed:\n{res.stderr[-3000:]}")
+    return res
+
+
+SMALL_PARAMS = """
+task: stack_cube
+source: {num_demos: 3, seed: 0}
+generate: {num_demos: 4, max_attempts: 12, workers: 1, seed: 7}
+"""
+
+
+@pytest.fixture(scope="session")
+def pipeline(tmp_path_factory) -> Path:
+    """A working directory with a small real run: 3 source demos, parsed, 4 generated demos
+    on D1 (workers=1) and the same run again with workers=2 for the determinism check."""
+    work = tmp_path_factory.mktemp("pipeline")
+    (work / "params.yaml").write_text(SMALL_PARAMS)
+    cli("source", cwd=work)
+    cli("parse", cwd=work)
+    cli("generate", "--variant", "D1", cwd=work)
+    (work / "params2.yaml").write_text(SMALL_PARAMS.replace("workers: 1", "workers: 2"))
+    cli("generate", "--params", "params2.yaml", "--variant", "D1",
+        "--out", "data/again/stack_cube_D1.zarr", "--metrics", "metrics/again.json", cwd=work)
+    return work

@@ -1,0 +1,90 @@
+"""Bad input: one clear error naming what is wrong, exit status 2, nothing written."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from mimicgen_pipe.store import write_store
+from tests.conftest import cli
+
+
+def outputs(work):
+    return sorted(str(p.relative_to(work)) for p in work.rglob("*")
+                  if p.is_file() and p.name != "params.yaml" and "input" not in p.parts)
+
+
+def run_bad(work, *args, params="task: stack_cube\n"):
+    (work / "params.yaml").write_text(params)
+    res = cli(*args, cwd=work, check=False)
+    assert res.returncode == 2, res.stderr
+    assert outputs(work) == []
+    lines = [ln for ln in res.stderr.splitlines() if "error:" in ln]
+    assert len(lines) == 1, res.stderr
+    return lines[0]
+
+
+def test_unknown_task(tmp_path):
+    msg = run_bad(tmp_path, "source", params="task: stack_sphere\n")
+    assert "task 'stack_sphere': unknown" in msg and "stack_cube" in msg
+
+
+def test_unknown_variant(tmp_path):
+    msg = run_bad(tmp_path, "generate", "--variant", "D7")
+    assert "variant 'D7': unknown" in msg and "D0, D1" in msg
+
+
+def test_params_value_of_wrong_type(tmp_path):
+    msg = run_bad(tmp_path, "generate", "--variant", "D0",
+                  params="generate: {action_noise: lots}\n")
+    assert "params.yaml: generate.action_noise: expected a number, got 'lots'" in msg
+
+
+def make_trajectory_file(folder, control_mode="pd_ee_delta_pose", drop=None):
+    folder.mkdir(parents=True, exist_ok=True)
+    h5 = folder / "demo.h5"
+    with h5py.File(h5, "w") as f:
+        g = f.create_group("traj_0")
+        if drop != "actions":
+            g["actions"] = np.zeros((5, 7), np.float32)
+        g["env_states/actors/cubeA"] = np.zeros((6, 13), np.float32)
+        g["env_states/articulations/panda"] = np.zeros((6, 31), np.float32)
+    meta = {"env_info": {"env_id": "StackCube-v1", "env_kwargs": {"control_mode": control_mode}},
+            "episodes": [{"episode_id": 0, "episode_seed": 0}]}
+    h5.with_suffix(".json").write_text(json.dumps(meta))
+    return h5
+
+
+def test_source_file_with_wrong_control_mode(tmp_path):
+    h5 = make_trajectory_file(tmp_path / "input", control_mode="pd_joint_pos")
+    msg = run_bad(tmp_path, "source", params=f"source: {{from_file: {h5}}}\n")
+    assert "control_mode is 'pd_joint_pos', expected 'pd_ee_delta_pose'" in msg
+
+
+def test_source_file_with_missing_key(tmp_path):
+    h5 = make_trajectory_file(tmp_path / "input", drop="actions")
+    msg = run_bad(tmp_path, "source", params=f"source: {{from_file: {h5}}}\n")
+    assert "traj_0/actions missing" in msg
+
+
+def test_parse_rejects_a_nan_pose(tmp_path):
+    t = 30
+    eye = np.broadcast_to(np.eye(4), (t, 4, 4)).copy()
+    bad = eye.copy()
+    bad[7, 0, 3] = np.nan
+    grasp = np.arange(t) > 10
+    steps = [{"actions": np.zeros((t, 7), np.float32), "gripper": np.zeros(t, np.float32),
+              "eef_pose": eye, "target_pose": eye, "object_poses/cubeA": bad,
+              "object_poses/cubeB": eye, "subtask_signals/grasp_cubeA": grasp}]
+    write_store(tmp_path / "input" / "src.zarr", steps, {}, {"task": "stack_cube"})
+    msg = run_bad(tmp_path, "parse", "--source", "input/src.zarr")
+    assert "data/object_poses/cubeA: NaN at step 7 (episode 0)" in msg
+
+
+@pytest.mark.parametrize("stage", ["source", "parse", "generate"])
+def test_every_stage_has_help(tmp_path, stage):
+    res = cli(stage, "--help", cwd=tmp_path)
+    assert "--params" in res.stdout

@@ -1,0 +1,128 @@
+"""The ManiSkill back end and the pipeline on it (needs SAPIEN; marked ``sim``)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from mimicgen_pipe import poses
+from mimicgen_pipe.controller import actions_to_target_poses
+from mimicgen_pipe.generation import replay_actions
+from mimicgen_pipe.store import read_store
+
+pytestmark = pytest.mark.sim
+
+
+@pytest.fixture(scope="module")
+def env():
+    from envs import make_env
+
+    e = make_env("maniskill", "stack_cube")
+    yield e
+    e.close()
+
+
+def test_action_to_target_matches_the_simulators_controller(env):
+    """Our conversion against ManiSkill's own: the arm controller's target pose after an
+    action equals actions_to_target_poses (including the inverted rotation sign)."""
+    rng = np.random.default_rng(0)
+    arm = env.unwrapped.agent.controller.controllers["arm"]
+    env.reset(seed=3, variant="D0")
+    for _ in range(10):
+        action = np.concatenate([rng.uniform(-1, 1, 3), rng.uniform(-0.5, 0.5, 3), [1.0]])
+        ours = env.action_to_target_pose(action)
+        env.step(action)
+        pq = arm._target_pose.raw_pose[0].numpy().astype(np.float64)
+        theirs = env.controller.root_pose @ poses.pose_from_pq(pq[:3], pq[3:])
+        np.testing.assert_allclose(ours[:3, 3], theirs[:3, 3], atol=1e-5)
+        assert poses.rotation_angle(ours[:3, :3], theirs[:3, :3]) < 1e-4
+    # +1 on the z rotation turns the target by -0.1 rad about z (ManiSkill's sign)
+    eef = env.eef_pose()
+    t = actions_to_target_poses(eef, np.array([0, 0, 0, 0, 0, 1.0, 1]), env.controller)
+    yaw = poses.matrix_to_axis_angle(t[:3, :3] @ eef[:3, :3].T)
+    np.testing.assert_allclose(yaw, [0, 0, -0.1], atol=1e-9)
+
+
+def test_closed_loop_tracking_converges(env):
+    env.reset(seed=4, variant="D0")
+    target = env.eef_pose().copy()
+    target[:3, 3] += [0.08, -0.05, -0.04]
+    target[:3, :3] = poses.axis_angle_to_matrix(np.array([0, 0, 0.4])) @ target[:3, :3]
+    for _ in range(40):
+        env.step(env.target_pose_to_action(target, 1.0))
+    e = env.eef_pose()
+    assert np.linalg.norm(e[:3, 3] - target[:3, 3]) < 2e-3
+    assert poses.rotation_angle(e[:3, :3], target[:3, :3]) < np.radians(1.0)
+
+
+def test_variants_sample_inside_their_bounds(env):
+    for variant in ("D0", "D1"):
+        bounds = env.spec.reset_bounds[variant]
+        xs = []
+        for seed in range(30):
+            env.reset(seed=seed, variant=variant)
+            for name, pose in env.object_poses().items():
+                b = bounds[name]
+                assert b.x[0] - 1e-6 <= pose[0, 3] <= b.x[1] + 1e-6
+                assert b.y[0] - 1e-6 <= pose[1, 3] <= b.y[1] + 1e-6
+                xs.append(pose[:2, 3])
+        spread = np.std(xs, axis=0)
+        if variant == "D0":
+            d0_spread = spread
+    assert np.all(spread > d0_spread)  # D1 is the larger region
+
+
+def test_pipeline_outputs_follow_the_data_contract(pipeline):
+    src = read_store(pipeline / "data/source/stack_cube.zarr")
+    assert src.n_episodes == 3
+    parsed = read_store(pipeline / "data/parsed/stack_cube.zarr")
+    assert parsed.episodes["subtask_term_index"].shape == (3, 1)
+    gen = read_store(pipeline / "data/generated/stack_cube_D1.zarr")
+    assert gen.n_episodes == 4 and gen.attrs["variant"] == "D1"
+    for key in ("actions", "eef_pose", "target_pose", "gripper", "env_state",
+                "object_poses/cubeA", "object_poses/cubeB", "subtask_signals/grasp_cubeA"):
+        assert key in gen.data and len(gen.data[key]) == gen.episode_ends[-1], key
+    for key in ("seed", "success", "source_demo", "initial_object_poses", "failure_reason"):
+        assert len(gen.episodes[key]) == 4, key
+    assert gen.episodes["success"].all()
+    assert (gen.episodes["failure_reason"] == -1).all()
+    metrics = json.loads((pipeline / "metrics/generate_stack_cube_D1.json").read_text())
+    assert metrics["successes"] == 4
+    assert metrics["attempts"] == 4 + metrics["failures_grasp_cubeA"] + metrics["failures_place_on_cubeB"]
+    failed = read_store(pipeline / "data/generated/stack_cube_D1_failed.zarr")
+    assert failed.n_episodes == metrics["attempts"] - 4
+    assert (failed.episodes["failure_reason"] >= 0).all()
+
+
+def test_generated_segments_follow_the_new_object(pipeline):
+    """Inside a generated episode, the executed targets of the grasp segment keep their pose
+    relative to cube A as in the chosen source demo (up to the action noise's absence in
+    targets: targets are noise-free)."""
+    gen = read_store(pipeline / "data/generated/stack_cube_D1.zarr")
+    src = read_store(pipeline / "data/parsed/stack_cube.zarr")
+    ep = 0
+    demo = int(gen.episodes["source_demo"][ep, 0])
+    s0 = src.episode_starts[demo]
+    src_rel = poses.pose_inv(src.poses("object_poses/cubeA")[s0]) @ src.poses("target_pose")[s0]
+    g0 = gen.episode_starts[ep] + 5  # after n_interp=5 interpolation poses
+    cube0 = gen.poses("initial_object_poses")[ep, 0]
+    gen_rel = poses.pose_inv(cube0) @ gen.poses("target_pose")[g0]
+    np.testing.assert_allclose(gen_rel, src_rel, atol=1e-6)
+
+
+def test_same_seed_same_dataset_on_one_or_two_workers(pipeline):
+    a = read_store(pipeline / "data/generated/stack_cube_D1.zarr")
+    b = read_store(pipeline / "data/again/stack_cube_D1.zarr")
+    assert a.data["actions"].tobytes() == b.data["actions"].tobytes()
+    np.testing.assert_array_equal(a.episodes["seed"], b.episodes["seed"])
+
+
+def test_replaying_generated_episodes_reproduces_success(pipeline, env):
+    gen = read_store(pipeline / "data/generated/stack_cube_D1.zarr")
+    for ep in range(gen.n_episodes):
+        steps, success = replay_actions(env, gen.episodes["initial_state"][ep],
+                                        gen.episode(ep)["actions"], env.spec.objects)
+        assert success, f"episode {ep} did not succeed on replay"
+        np.testing.assert_allclose(steps["env_state"], gen.episode(ep)["env_state"], atol=1e-4)
