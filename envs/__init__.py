@@ -24,7 +24,9 @@ def task_spec(backend: str, task: str) -> TaskSpec:
     """The task spec of ``task`` on ``backend``; InputError for an unknown name."""
     tasks = _module(backend).TASKS
     if task not in tasks:
-        raise InputError(f"task {task!r}: unknown for backend {backend} (known: {', '.join(tasks)})")
+        raise InputError(
+            f"task {task!r}: unknown for backend {backend} (known: {', '.join(tasks)})"
+        )
     return tasks[task].spec
 
 

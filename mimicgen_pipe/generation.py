@@ -20,6 +20,9 @@ class Env(Protocol):
     All poses are 4x4 in the world frame [m]."""
 
     def reset(self, seed: int, variant: str) -> None: ...
+    def rebuild(self) -> None:
+        """Rebuild the scene, dropping whatever the simulator carries between episodes."""
+
     def eef_pose(self) -> np.ndarray: ...
     def object_poses(self) -> dict[str, np.ndarray]: ...
     def step(self, action: np.ndarray) -> None: ...
@@ -89,7 +92,9 @@ def select_source(
     if strategy == "random":
         return int(rng.integers(n))
     if strategy == "nearest_neighbor":
-        order = np.argsort(pose_distance(candidate_object_poses, current_object_pose), kind="stable")
+        order = np.argsort(
+            pose_distance(candidate_object_poses, current_object_pose), kind="stable"
+        )
         return int(order[rng.integers(min(nn_k, n))])
     raise ValueError(f"unknown selection strategy {strategy!r}")
 
@@ -167,11 +172,17 @@ def run_attempt(
     initial_state = env.get_state()
     obj_now = env.object_poses()
     initial_object_poses = np.stack([obj_now[o] for o in spec.objects])
-    offsets = [int(rng.integers(s.term_offset_range[0], s.term_offset_range[1] + 1))
-               for s in spec.subtasks[:-1]]
+    offsets = [
+        int(rng.integers(s.term_offset_range[0], s.term_offset_range[1] + 1))
+        for s in spec.subtasks[:-1]
+    ]
     starts, lengths = sources.episode_starts, sources.lengths
-    bounds = np.stack([segment_bounds(sources.term_index[j], offsets, int(lengths[j]))
-                       for j in range(len(lengths))])  # (N, M, 2)
+    bounds = np.stack(
+        [
+            segment_bounds(sources.term_index[j], offsets, int(lengths[j]))
+            for j in range(len(lengths))
+        ]
+    )  # (N, M, 2)
 
     recorder = StepRecorder(spec.objects)
     chosen = np.full(len(spec.subtasks), -1, dtype=np.int64)
@@ -231,8 +242,12 @@ class StepRecorder:
     ) -> dict[str, bool]:
         """Append one step; returns the subtask signals it recorded."""
         sig = env.subtask_signals()
-        row = {"actions": action, "eef_pose": eef, "target_pose": target,
-               "env_state": env.get_state()}
+        row = {
+            "actions": action,
+            "eef_pose": eef,
+            "target_pose": target,
+            "env_state": env.get_state(),
+        }
         row.update({f"object_poses/{o}": object_poses[o] for o in self.objects})
         row.update({f"subtask_signals/{n}": v for n, v in sig.items()})
         for key, value in row.items():

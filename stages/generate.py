@@ -24,9 +24,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
     p.add_argument("--variant", required=True, help="reset variant, e.g. D0 or D1")
     p.add_argument("--parsed", help="parsed source store (default: data/parsed/<task>.zarr)")
-    p.add_argument("--out", help="generated store (default: data/generated/<task>_<variant>.zarr;"
-                   " failed attempts go to <name>_failed.zarr beside it)")
-    p.add_argument("--metrics", help="metrics JSON (default: metrics/generate_<task>_<variant>.json)")
+    p.add_argument(
+        "--out",
+        help="generated store (default: data/generated/<task>_<variant>.zarr;"
+        " failed attempts go to <name>_failed.zarr beside it)",
+    )
+    p.add_argument(
+        "--metrics", help="metrics JSON (default: metrics/generate_<task>_<variant>.json)"
+    )
 
 
 def source_demos(store: EpisodeStore, objects: tuple[str, ...]) -> SourceDemos:
@@ -49,28 +54,39 @@ def run(args: argparse.Namespace) -> None:
     out = Path(args.out or layout.generated_store(params.task, args.variant))
     failed_out = out.with_name(out.name.replace(".zarr", "_failed.zarr"))
     metrics_path = Path(args.metrics or layout.metrics_file("generate", params.task, args.variant))
-    store = read_store(parsed_path, required=["target_pose", "gripper"]
-                       + [f"object_poses/{o}" for o in spec.objects])
+    store = read_store(
+        parsed_path,
+        required=["target_pose", "gripper"] + [f"object_poses/{o}" for o in spec.objects],
+    )
     if "subtask_term_index" not in store.episodes:
-        raise InputError(f"{parsed_path}: meta/episodes/subtask_term_index missing "
-                         "(is this a parsed store? run the parse stage)")
+        raise InputError(
+            f"{parsed_path}: meta/episodes/subtask_term_index missing "
+            "(is this a parsed store? run the parse stage)"
+        )
     if store.attrs.get("task") != params.task:
-        raise InputError(f"{parsed_path}: attrs.task is {store.attrs.get('task')!r}, "
-                         f"expected {params.task!r}")
-    config = GenerationConfig(g.action_noise, g.n_interp, g.n_fixed, g.selection, g.nn_k,
-                              g.per_subtask)
+        raise InputError(
+            f"{parsed_path}: attrs.task is {store.attrs.get('task')!r}, expected {params.task!r}"
+        )
+    config = GenerationConfig(
+        g.action_noise, g.n_interp, g.n_fixed, g.selection, g.nn_k, g.per_subtask
+    )
     job = AttemptJob(
         make_env=functools.partial(envs.make_env, params.backend, params.task, params.robot),
         sources=source_demos(store, spec.objects),
-        spec=spec, config=config, variant=args.variant,
+        spec=spec,
+        config=config,
+        variant=args.variant,
     )
     seeds = [attempt_seed(g.seed, args.variant, i) for i in range(g.max_attempts)]
     guarantee = g.mode == "guarantee"
     kept, failed, rows = [], [], []
     t0 = time.perf_counter()
     total = g.num_demos if guarantee else g.max_attempts
-    bar = tqdm(total=total, desc=f"generate {params.task} {args.variant}",
-               unit="demo" if guarantee else "attempt")
+    bar = tqdm(
+        total=total,
+        desc=f"generate {params.task} {args.variant}",
+        unit="demo" if guarantee else "attempt",
+    )
     results = run_attempts(job, seeds, g.workers)
     try:
         if not (guarantee and g.num_demos == 0):
@@ -92,29 +108,53 @@ def run(args: argparse.Namespace) -> None:
             "raise max_attempts or check the source demos. Nothing was written."
         )
     attrs = {
-        "task": params.task, "variant": args.variant, "backend": params.backend,
-        "robot": params.robot, "control_mode": store.attrs.get("control_mode"),
-        "control_freq": store.attrs.get("control_freq"), "objects": list(spec.objects),
-        "subtasks": [s.name for s in spec.subtasks], "params": as_dict(params),
+        "task": params.task,
+        "variant": args.variant,
+        "backend": params.backend,
+        "robot": params.robot,
+        "control_mode": store.attrs.get("control_mode"),
+        "control_freq": store.attrs.get("control_freq"),
+        "objects": list(spec.objects),
+        "subtasks": [s.name for s in spec.subtasks],
+        "params": as_dict(params),
     }
-    seed_of = {id(a): r[0] for a, r in zip(kept + failed, [r for r in rows if r[1]]
-                                                       + [r for r in rows if not r[1]])}
+    seed_of = {
+        id(a): r[0]
+        for a, r in zip(
+            kept + failed, [r for r in rows if r[1]] + [r for r in rows if not r[1]], strict=False
+        )
+    }
     for attempts, path in ((kept, out), (failed, failed_out)):
-        write_store(path, [a.steps for a in attempts], {
-            "seed": np.asarray([seed_of[id(a)] for a in attempts], np.int64),
-            "success": np.asarray([a.success for a in attempts], bool),
-            "source_demo": np.asarray([a.source_demo for a in attempts], np.int64)
-            .reshape(len(attempts), len(spec.subtasks)),
-            "initial_object_poses": np.asarray([a.initial_object_poses for a in attempts])
-            .reshape(len(attempts), len(spec.objects), 4, 4),
-            "initial_state": np.asarray([a.initial_state for a in attempts], np.float32),
-            "failure_reason": np.asarray([a.failed_subtask for a in attempts], np.int64),
-        }, attrs)
+        write_store(
+            path,
+            [a.steps for a in attempts],
+            {
+                "seed": np.asarray([seed_of[id(a)] for a in attempts], np.int64),
+                "success": np.asarray([a.success for a in attempts], bool),
+                "source_demo": np.asarray([a.source_demo for a in attempts], np.int64).reshape(
+                    len(attempts), len(spec.subtasks)
+                ),
+                "initial_object_poses": np.asarray(
+                    [a.initial_object_poses for a in attempts]
+                ).reshape(len(attempts), len(spec.objects), 4, 4),
+                "initial_state": np.asarray([a.initial_state for a in attempts], np.float32),
+                "failure_reason": np.asarray([a.failed_subtask for a in attempts], np.int64),
+            },
+            attrs,
+        )
     success = np.array([r[1] for r in rows], bool)
-    metrics = generation_metrics(success, np.array([r[2] for r in rows]),
-                                 np.array([r[3] for r in rows]), [s.name for s in spec.subtasks])
-    metrics.update(wall_seconds=wall, steps=int(sum(len(a.steps["actions"]) for a in kept + failed)))
+    metrics = generation_metrics(
+        success,
+        np.array([r[2] for r in rows]),
+        np.array([r[3] for r in rows]),
+        [s.name for s in spec.subtasks],
+    )
+    metrics.update(
+        wall_seconds=wall, steps=int(sum(len(a.steps["actions"]) for a in kept + failed))
+    )
     write_metrics(metrics_path, metrics)
-    print(f"generate: {metrics['successes']}/{metrics['attempts']} attempts succeeded "
-          f"(DGR {metrics['dgr']:.1f}%, median {metrics['seconds_per_attempt_median']:.3f} s/attempt)"
-          f" -> {out}")
+    print(
+        f"generate: {metrics['successes']}/{metrics['attempts']} attempts succeeded "
+        f"(DGR {metrics['dgr']:.1f}%, median {metrics['seconds_per_attempt_median']:.3f} s/attempt)"
+        f" -> {out}"
+    )

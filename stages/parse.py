@@ -33,8 +33,9 @@ def run(args: argparse.Namespace) -> None:
         required=["actions", "gripper", *pose_keys, *[f"subtask_signals/{s}" for s in signals]],
     )
     if store.attrs.get("task") != params.task:
-        raise InputError(f"{src_path}: attrs.task is {store.attrs.get('task')!r}, "
-                         f"expected {params.task!r}")
+        raise InputError(
+            f"{src_path}: attrs.task is {store.attrs.get('task')!r}, expected {params.task!r}"
+        )
     for key in pose_keys + ["actions"]:
         bad = ~np.isfinite(store.data[key]).all(axis=-1)
         if bad.any():
@@ -58,10 +59,17 @@ def run(args: argparse.Namespace) -> None:
     episodes["subtask_term_index"] = np.asarray(term_index, np.int64).reshape(store.n_episodes, -1)
     attrs = dict(store.attrs)
     attrs["subtasks"] = [
-        {"name": s.name, "reference_object": s.reference_object, "term_signal": s.term_signal,
-         "term_offset_range": list(s.term_offset_range)} for s in spec.subtasks
+        {
+            "name": s.name,
+            "reference_object": s.reference_object,
+            "term_signal": s.term_signal,
+            "term_offset_range": list(s.term_offset_range),
+        }
+        for s in spec.subtasks
     ]
     write_store(out, steps, episodes, attrs)
     lengths = np.diff(np.concatenate([[0], store.episode_ends]))
-    print(f"parse: {store.n_episodes} demos, subtask ends {episodes['subtask_term_index'].tolist()}"
-          f" of lengths {lengths.tolist()} -> {out}")
+    print(
+        f"parse: {store.n_episodes} demos, subtask ends {episodes['subtask_term_index'].tolist()}"
+        f" of lengths {lengths.tolist()} -> {out}"
+    )

@@ -60,18 +60,33 @@ def run(args: argparse.Namespace) -> None:
     write_store(
         out,
         kept,
-        {"seed": np.asarray(seeds, np.int64), "success": np.ones(len(kept), bool),
-         "initial_object_poses": np.stack(init_poses)},
-        {"task": params.task, "variant": "D0", "backend": params.backend, "robot": params.robot,
-         "control_mode": env.control_mode, "control_freq": env.control_freq,
-         "objects": list(spec.objects), "source_file": str(p.from_file or "motion_planning"),
-         "params": as_dict(params)},
+        {
+            "seed": np.asarray(seeds, np.int64),
+            "success": np.ones(len(kept), bool),
+            "initial_object_poses": np.stack(init_poses),
+        },
+        {
+            "task": params.task,
+            "variant": "D0",
+            "backend": params.backend,
+            "robot": params.robot,
+            "control_mode": env.control_mode,
+            "control_freq": env.control_freq,
+            "objects": list(spec.objects),
+            "source_file": str(p.from_file or "motion_planning"),
+            "params": as_dict(params),
+        },
     )
-    write_metrics(metrics_path, {
-        "demos": len(kept),
-        "dropped_planner": int(planner_failures),
-        "dropped_replay": int(replay_failures),
-        "mean_length": float(np.mean([len(s["actions"]) for s in kept])),
-    })
-    print(f"source: {len(kept)} demos -> {out} ({planner_failures} planner and "
-          f"{replay_failures} replay failures dropped)")
+    write_metrics(
+        metrics_path,
+        {
+            "demos": len(kept),
+            "dropped_planner": int(planner_failures),
+            "dropped_replay": int(replay_failures),
+            "mean_length": float(np.mean([len(s["actions"]) for s in kept])),
+        },
+    )
+    print(
+        f"source: {len(kept)} demos -> {out} ({planner_failures} planner and "
+        f"{replay_failures} replay failures dropped)"
+    )

@@ -17,8 +17,13 @@ REPO = Path(__file__).resolve().parents[1]
 def cli(*args: str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
     """Run ``mimicgen-pipe`` as a user would, in ``cwd``."""
     env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONWARNINGS="ignore")
-    res = subprocess.run([sys.executable, "-m", "mimicgen_pipe.cli", *args], cwd=cwd, env=env,
-                         capture_output=True, text=True)
+    res = subprocess.run(
+        [sys.executable, "-m", "mimicgen_pipe.cli", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     if check and res.returncode != 0:
         raise AssertionError(f"mimicgen-pipe {' '.join(args)} failed:\n{res.stderr[-3000:]}")
     return res
@@ -41,6 +46,16 @@ def pipeline(tmp_path_factory) -> Path:
     cli("parse", cwd=work)
     cli("generate", "--variant", "D1", cwd=work)
     (work / "params2.yaml").write_text(SMALL_PARAMS.replace("workers: 1", "workers: 2"))
-    cli("generate", "--params", "params2.yaml", "--variant", "D1",
-        "--out", "data/again/stack_cube_D1.zarr", "--metrics", "metrics/again.json", cwd=work)
+    cli(
+        "generate",
+        "--params",
+        "params2.yaml",
+        "--variant",
+        "D1",
+        "--out",
+        "data/again/stack_cube_D1.zarr",
+        "--metrics",
+        "metrics/again.json",
+        cwd=work,
+    )
     return work

@@ -13,8 +13,11 @@ from tests.conftest import cli
 
 
 def outputs(work):
-    return sorted(str(p.relative_to(work)) for p in work.rglob("*")
-                  if p.is_file() and p.name != "params.yaml" and "input" not in p.parts)
+    return sorted(
+        str(p.relative_to(work))
+        for p in work.rglob("*")
+        if p.is_file() and p.name != "params.yaml" and "input" not in p.parts
+    )
 
 
 def run_bad(work, *args, params="task: stack_cube\n"):
@@ -38,8 +41,9 @@ def test_unknown_variant(tmp_path):
 
 
 def test_params_value_of_wrong_type(tmp_path):
-    msg = run_bad(tmp_path, "generate", "--variant", "D0",
-                  params="generate: {action_noise: lots}\n")
+    msg = run_bad(
+        tmp_path, "generate", "--variant", "D0", params="generate: {action_noise: lots}\n"
+    )
     assert "params.yaml: generate.action_noise: expected a number, got 'lots'" in msg
 
 
@@ -52,8 +56,10 @@ def make_trajectory_file(folder, control_mode="pd_ee_delta_pose", drop=None):
             g["actions"] = np.zeros((5, 7), np.float32)
         g["env_states/actors/cubeA"] = np.zeros((6, 13), np.float32)
         g["env_states/articulations/panda"] = np.zeros((6, 31), np.float32)
-    meta = {"env_info": {"env_id": "StackCube-v1", "env_kwargs": {"control_mode": control_mode}},
-            "episodes": [{"episode_id": 0, "episode_seed": 0}]}
+    meta = {
+        "env_info": {"env_id": "StackCube-v1", "env_kwargs": {"control_mode": control_mode}},
+        "episodes": [{"episode_id": 0, "episode_seed": 0}],
+    }
     h5.with_suffix(".json").write_text(json.dumps(meta))
     return h5
 
@@ -76,9 +82,17 @@ def test_parse_rejects_a_nan_pose(tmp_path):
     bad = eye.copy()
     bad[7, 0, 3] = np.nan
     grasp = np.arange(t) > 10
-    steps = [{"actions": np.zeros((t, 7), np.float32), "gripper": np.zeros(t, np.float32),
-              "eef_pose": eye, "target_pose": eye, "object_poses/cubeA": bad,
-              "object_poses/cubeB": eye, "subtask_signals/grasp_cubeA": grasp}]
+    steps = [
+        {
+            "actions": np.zeros((t, 7), np.float32),
+            "gripper": np.zeros(t, np.float32),
+            "eef_pose": eye,
+            "target_pose": eye,
+            "object_poses/cubeA": bad,
+            "object_poses/cubeB": eye,
+            "subtask_signals/grasp_cubeA": grasp,
+        }
+    ]
     write_store(tmp_path / "input" / "src.zarr", steps, {}, {"task": "stack_cube"})
     msg = run_bad(tmp_path, "parse", "--source", "input/src.zarr")
     assert "data/object_poses/cubeA: NaN at step 7 (episode 0)" in msg

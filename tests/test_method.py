@@ -64,13 +64,15 @@ def test_interpolation_is_linear_and_slerp():
 def test_nearest_neighbour_ranks_by_paper_distance_and_draws_from_first_k():
     base = np.eye(4)
     cands = np.stack([np.eye(4)] * 5)
-    cands[0, :3, 3] = [0.30, 0, 0]                       # 0.30
-    cands[1, :3, 3] = [0.05, 0, 0]                       # 0.05
+    cands[0, :3, 3] = [0.30, 0, 0]  # 0.30
+    cands[1, :3, 3] = [0.05, 0, 0]  # 0.05
     cands[2, :3, :3] = poses.axis_angle_to_matrix(np.array([0, 0, 0.1]))  # 0.10 (angle only)
-    cands[3, :3, 3] = [0, 0.2, 0]                        # 0.20
-    cands[4, :3, 3] = [0.01, 0, 0]                       # 0.01 + 0.5 rad
+    cands[3, :3, 3] = [0, 0.2, 0]  # 0.20
+    cands[4, :3, 3] = [0.01, 0, 0]  # 0.01 + 0.5 rad
     cands[4, :3, :3] = poses.axis_angle_to_matrix(np.array([0.5, 0, 0]))
-    np.testing.assert_allclose(pose_distance(cands, base), [0.30, 0.05, 0.10, 0.20, 0.51], atol=1e-9)
+    np.testing.assert_allclose(
+        pose_distance(cands, base), [0.30, 0.05, 0.10, 0.20, 0.51], atol=1e-9
+    )
     rng = np.random.default_rng(0)
     picks = {select_source("nearest_neighbor", cands, base, rng, nn_k=2) for _ in range(200)}
     assert picks == {1, 2}
@@ -99,10 +101,10 @@ SUBTASKS = (
 def test_split_on_first_rise_after_previous_boundary():
     t = 40
     grasp = np.zeros(t, bool)
-    grasp[5:8] = True     # a first, brief grasp
+    grasp[5:8] = True  # a first, brief grasp
     grasp[12:] = True
     place = np.zeros(t, bool)
-    place[3] = True       # before the grasp: must be ignored
+    place[3] = True  # before the grasp: must be ignored
     place[25:] = True
     ends = split_into_segments({"grasp_a": grasp, "place_b": place}, SUBTASKS)
     assert ends.tolist() == [5, 25]

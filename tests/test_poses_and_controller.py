@@ -13,7 +13,9 @@ from mimicgen_pipe.controller import (
 
 def random_poses(rng: np.random.Generator, n: int) -> np.ndarray:
     q = rng.standard_normal((n, 4))
-    return poses.pose_from_pq(rng.uniform(-0.5, 0.5, (n, 3)), q / np.linalg.norm(q, axis=1)[:, None])
+    return poses.pose_from_pq(
+        rng.uniform(-0.5, 0.5, (n, 3)), q / np.linalg.norm(q, axis=1)[:, None]
+    )
 
 
 def test_quaternion_round_trip_and_known_rotation():
@@ -28,33 +30,45 @@ def test_quaternion_round_trip_and_known_rotation():
 
 def test_inverse_is_exact():
     t = random_poses(np.random.default_rng(1), 20)
-    np.testing.assert_allclose(t @ poses.pose_inv(t), np.broadcast_to(np.eye(4), t.shape), atol=1e-12)
+    np.testing.assert_allclose(
+        t @ poses.pose_inv(t), np.broadcast_to(np.eye(4), t.shape), atol=1e-12
+    )
 
 
 def test_euler_xyz_round_trip_and_order():
     rng = np.random.default_rng(2)
     e = rng.uniform(-1.2, 1.2, (100, 3))
-    np.testing.assert_allclose(poses.matrix_to_euler_xyz(poses.euler_xyz_to_matrix(e)), e, atol=1e-10)
+    np.testing.assert_allclose(
+        poses.matrix_to_euler_xyz(poses.euler_xyz_to_matrix(e)), e, atol=1e-10
+    )
     # Rx(a) @ Ry(b) @ Rz(c), as pytorch3d's "XYZ"
     a, b, c = 0.3, -0.4, 0.5
     rx = poses.axis_angle_to_matrix(np.array([a, 0, 0]))
     ry = poses.axis_angle_to_matrix(np.array([0, b, 0]))
     rz = poses.axis_angle_to_matrix(np.array([0, 0, c]))
-    np.testing.assert_allclose(poses.euler_xyz_to_matrix(np.array([a, b, c])), rx @ ry @ rz, atol=1e-12)
+    np.testing.assert_allclose(
+        poses.euler_xyz_to_matrix(np.array([a, b, c])), rx @ ry @ rz, atol=1e-12
+    )
 
 
 def test_axis_angle_round_trip():
     rng = np.random.default_rng(3)
     v = rng.standard_normal((100, 3))
     v *= (rng.uniform(0, np.pi - 1e-3, 100) / np.linalg.norm(v, axis=1))[:, None]
-    np.testing.assert_allclose(poses.matrix_to_axis_angle(poses.axis_angle_to_matrix(v)), v, atol=1e-9)
+    np.testing.assert_allclose(
+        poses.matrix_to_axis_angle(poses.axis_angle_to_matrix(v)), v, atol=1e-9
+    )
 
 
 @pytest.mark.parametrize("rot_repr,rot_scale", [("euler_xyz", -0.1), ("axis_angle", 0.5)])
 def test_action_target_round_trip(rot_repr, rot_scale):
     rng = np.random.default_rng(4)
-    root = poses.pose_from_pq(np.array([-0.615, 0.1, 0.0]), np.array([np.cos(0.2), 0, 0, np.sin(0.2)]))
-    ctrl = DeltaPoseController(pos_scale=0.1, rot_scale=rot_scale, rot_repr=rot_repr, root_pose=root)
+    root = poses.pose_from_pq(
+        np.array([-0.615, 0.1, 0.0]), np.array([np.cos(0.2), 0, 0, np.sin(0.2)])
+    )
+    ctrl = DeltaPoseController(
+        pos_scale=0.1, rot_scale=rot_scale, rot_repr=rot_repr, root_pose=root
+    )
     eef = random_poses(rng, 200)
     actions = rng.uniform(-1, 1, (200, 7))
     actions[:, 3:6] *= 0.5 / np.linalg.norm(actions[:, 3:6], axis=1, keepdims=True).clip(1, None)
@@ -62,8 +76,9 @@ def test_action_target_round_trip(rot_repr, rot_scale):
     back = target_poses_to_actions(eef, targets, actions[:, 6], ctrl)
     np.testing.assert_allclose(back, actions, atol=1e-9)
     # translation is in the root frame: the world displacement is R_root @ (0.1 * dpos)
-    np.testing.assert_allclose(targets[:, :3, 3] - eef[:, :3, 3],
-                               (root[:3, :3] @ (0.1 * actions[:, :3]).T).T, atol=1e-12)
+    np.testing.assert_allclose(
+        targets[:, :3, 3] - eef[:, :3, 3], (root[:3, :3] @ (0.1 * actions[:, :3]).T).T, atol=1e-12
+    )
 
 
 def test_far_target_saturates():

@@ -13,7 +13,14 @@ from mani_skill.envs.tasks import StackCubeEnv  # noqa: E402
 from mani_skill.utils.registration import register_env  # noqa: E402
 from mani_skill.utils.structs.pose import Pose  # noqa: E402
 
-from envs.maniskill.tasks import D1_MAX_REACH, D1_MIN_DIST, D1_X, D1_Y, ROBOT_BASE_XY, TASKS  # noqa: E402
+from envs.maniskill.tasks import (  # noqa: E402
+    D1_MAX_REACH,
+    D1_MIN_DIST,
+    D1_X,
+    D1_Y,
+    ROBOT_BASE_XY,
+    TASKS,
+)
 from mimicgen_pipe import poses  # noqa: E402
 from mimicgen_pipe.controller import (  # noqa: E402
     DeltaPoseController,
@@ -120,7 +127,6 @@ class ManiSkillEnv:
             rot_repr="euler_xyz",
             root_pose=_pose_of(self._u.agent.robot.pose.raw_pose),
         )
-        self._actors = {name: getattr(self._u, attr) for name, attr in self.task.objects.items()}
         self._info: dict = {}
         self._eef: np.ndarray | None = None  # cached until the next step/reset/set_state
         self._objects: dict[str, np.ndarray] | None = None
@@ -131,11 +137,19 @@ class ManiSkillEnv:
         self._u.reset(seed=int(seed), options={"variant": variant})
         self._changed(self._u.evaluate())
 
-    def step(self, action: np.ndarray) -> None:
-        self._changed(self._u.step(np.asarray(action, dtype=np.float32))[4])
+    def rebuild(self) -> None:
+        # PhysX keeps contact caches across plain resets; a reconfigure builds a new scene.
+        self._u.reset(seed=0, options={"variant": "D0", "reconfigure": True})
+        self._changed(self._u.evaluate())
 
     def _changed(self, info: dict) -> None:
         self._info, self._eef, self._objects = info, None, None
+        # actors are looked up again: a reconfigure replaces them
+        self._actors = {name: getattr(self._u, attr) for name, attr in self.task.objects.items()}
+
+    def step(self, action: np.ndarray) -> None:
+        self._info = self._u.step(np.asarray(action, dtype=np.float32))[4]
+        self._eef = self._objects = None
 
     def eef_pose(self) -> np.ndarray:
         if self._eef is None:

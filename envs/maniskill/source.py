@@ -77,7 +77,9 @@ def read_trajectory_file(path: str | os.PathLike, task: str) -> list[TrajectoryF
                     raise InputError(f"{path}: {name}/{key} missing")
             actions = np.asarray(g["actions"], dtype=np.float32)
             if actions.ndim != 2 or actions.shape[1] != 7:
-                raise InputError(f"{path}: {name}/actions has shape {actions.shape}, expected (T, 7)")
+                raise InputError(
+                    f"{path}: {name}/actions has shape {actions.shape}, expected (T, 7)"
+                )
             state = _initial_state(g["env_states"])
             flat = [actions] + [v for d in state.values() for v in d.values()]
             if not all(np.isfinite(a).all() for a in flat):
@@ -102,18 +104,43 @@ def run_motion_planner(
         "print(_plan_child(*sys.argv[1:]))"
     )
     res = subprocess.run(
-        [sys.executable, "-c", code, task, robot, str(num_demos), str(seed), str(out_dir),
-         str(max_tries)],
-        capture_output=True, text=True, check=False,
+        [
+            sys.executable,
+            "-c",
+            code,
+            task,
+            robot,
+            str(num_demos),
+            str(seed),
+            str(out_dir),
+            str(max_tries),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
     )
     if res.returncode != 0:
         raise RuntimeError(f"motion planning failed:\n{res.stderr[-4000:]}")
     failed = int(res.stdout.strip().splitlines()[-1])
     raw = out_dir / "planned.h5"
     conv = subprocess.run(
-        [sys.executable, "-m", "mani_skill.trajectory.replay_trajectory", "--traj-path",
-         str(raw), "-c", CONTROL_MODE, "-o", "none", "--save-traj", "-b", "physx_cpu"],
-        capture_output=True, text=True, check=False,
+        [
+            sys.executable,
+            "-m",
+            "mani_skill.trajectory.replay_trajectory",
+            "--traj-path",
+            str(raw),
+            "-c",
+            CONTROL_MODE,
+            "-o",
+            "none",
+            "--save-traj",
+            "-b",
+            "physx_cpu",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
     )
     if conv.returncode != 0:
         raise RuntimeError(f"conversion to {CONTROL_MODE} failed:\n{conv.stderr[-4000:]}")
@@ -123,8 +150,9 @@ def run_motion_planner(
     return converted[0], failed
 
 
-def _plan_child(task: str, robot: str, num_demos: str, seed: str, out_dir: str,
-                max_tries: str) -> int:
+def _plan_child(
+    task: str, robot: str, num_demos: str, seed: str, out_dir: str, max_tries: str
+) -> int:
     os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401  registers the tasks
@@ -132,10 +160,23 @@ def _plan_child(task: str, robot: str, num_demos: str, seed: str, out_dir: str,
     from mani_skill.utils.wrappers.record import RecordEpisode
 
     spec = TASKS[task]
-    env = gym.make(spec.base_env_id, obs_mode="none", control_mode="pd_joint_pos",
-                   sim_backend="physx_cpu", render_backend="none", robot_uids=robot)
-    env = RecordEpisode(env, output_dir=out_dir, trajectory_name="planned", save_video=False,
-                        source_type="motionplanning", record_reward=False, save_on_reset=False)
+    env = gym.make(
+        spec.base_env_id,
+        obs_mode="none",
+        control_mode="pd_joint_pos",
+        sim_backend="physx_cpu",
+        render_backend="none",
+        robot_uids=robot,
+    )
+    env = RecordEpisode(
+        env,
+        output_dir=out_dir,
+        trajectory_name="planned",
+        save_video=False,
+        source_type="motionplanning",
+        record_reward=False,
+        save_on_reset=False,
+    )
     solve = MP_SOLUTIONS[spec.base_env_id]
     kept = failed = 0
     for s in range(int(seed), int(seed) + int(max_tries)):
@@ -162,7 +203,7 @@ def initial_state(env, episode: TrajectoryFileEpisode) -> np.ndarray:
     robot = env.unwrapped.agent.robot.name
     arts = state["articulations"]
     if robot not in arts and len(arts) == 1:
-        (name, value), = arts.items()
+        ((name, value),) = arts.items()
         expected = env.unwrapped.agent.robot.get_state().shape[-1]
         if value.shape[-1] != expected:
             raise InputError(
