@@ -35,6 +35,10 @@ class DeltaPoseController:
     rot_repr: Literal["euler_xyz", "axis_angle"] = "euler_xyz"
     root_pose: np.ndarray = field(default_factory=lambda: np.eye(4))
 
+    def __post_init__(self) -> None:
+        # the inverse root pose is used on every step; computed once
+        object.__setattr__(self, "root_pose_inv", poses.pose_inv(np.asarray(self.root_pose)))
+
     def _rot_from_vec(self, v: np.ndarray) -> np.ndarray:
         if self.rot_repr == "euler_xyz":
             return poses.euler_xyz_to_matrix(v)
@@ -63,8 +67,7 @@ def actions_to_target_poses(
     """Controller target poses (..., 4, 4, world frame) reached by applying ``actions`` (..., 7)
     from end-effector poses ``eef_poses`` (..., 4, 4, world frame)."""
     a = clip_actions(actions)
-    root_inv = poses.pose_inv(controller.root_pose)
-    eef_root = root_inv @ eef_poses
+    eef_root = controller.root_pose_inv @ eef_poses
     target = np.array(eef_root, dtype=np.float64, copy=True)
     target[..., :3, 3] = eef_root[..., :3, 3] + controller.pos_scale * a[..., :3]
     delta_r = controller._rot_from_vec(controller.rot_scale * a[..., 3:6])
@@ -81,9 +84,8 @@ def target_poses_to_actions(
     """Delta-pose actions (..., 7) that move ``eef_poses`` towards ``target_poses`` (both
     (..., 4, 4), world frame), with gripper commands ``gripper`` (...,), clipped to the
     action space (a far target gives a saturated action, as the controller would)."""
-    root_inv = poses.pose_inv(controller.root_pose)
-    eef_root = root_inv @ eef_poses
-    tgt_root = root_inv @ target_poses
+    eef_root = controller.root_pose_inv @ eef_poses
+    tgt_root = controller.root_pose_inv @ target_poses
     dpos = (tgt_root[..., :3, 3] - eef_root[..., :3, 3]) / controller.pos_scale
     delta_r = tgt_root[..., :3, :3] @ np.swapaxes(eef_root[..., :3, :3], -1, -2)
     drot = controller._vec_from_rot(delta_r) / controller.rot_scale
