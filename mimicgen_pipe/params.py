@@ -141,10 +141,7 @@ def load_params(path: str | Path = "params.yaml") -> Params:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML ({exc})") from exc
-    params = _build(Params, raw, "", path)
-    if params.generate.nn_k < 1:
-        raise InputError(f"{path}: generate.nn_k: expected >= 1")
-    return params
+    return _build(Params, raw, "", path)
 
 
 def as_dict(params: Any) -> dict[str, Any]:
