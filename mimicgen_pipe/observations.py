@@ -1,0 +1,74 @@
+"""Low-dimensional policy observations (paper N: end-effector pose, gripper finger positions
+and ground-truth object poses), computed one way for recording and for policy rollouts.
+
+Every key is a flat float32 vector in the world frame (positions in metres, quaternions
+wxyz). Quaternions carry a sign convention, because simulators return q or -q at will and a
+sign flip between two steps is a jump the policy would have to learn:
+
+- the end effector's quaternion lies in the hemisphere of ``EEF_QUAT_REFERENCE`` (gripper
+  pointing straight down): continuous for every top-down grasp yaw within ±180°;
+- an object's quaternion has w >= 0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from mimicgen_pipe import poses
+
+EEF_QUAT_REFERENCE = np.array([0.0, 1.0, 0.0, 0.0])  # wxyz: 180° about world x, pointing down
+
+
+def observation_keys(objects: Sequence[str]) -> tuple[str, ...]:
+    """Every key ``low_dim_observation`` returns for a task with these objects, in order."""
+    keys = ["eef_pos", "eef_quat", "gripper_qpos"]
+    for o in objects:
+        keys += [f"{o}_pos", f"{o}_quat", f"eef_to_{o}_pos"]
+    for i, a in enumerate(objects):
+        keys += [f"{a}_to_{b}_pos" for b in objects[i + 1 :]]
+    return tuple(keys)
+
+
+def _quat(rotation: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
+    q = poses.matrix_to_quat_wxyz(rotation)  # w >= 0
+    if reference is not None and float(q @ reference) < 0:
+        q = -q
+    return q
+
+
+def low_dim_observation(
+    eef_pose: np.ndarray,
+    gripper_qpos: np.ndarray,
+    object_poses: Mapping[str, np.ndarray],
+    objects: Sequence[str],
+) -> dict[str, np.ndarray]:
+    """Observation of one step.
+
+    eef_pose: 4x4 end-effector (TCP) pose, world frame. gripper_qpos: finger joint positions
+    [m]. object_poses: object name -> 4x4 pose, world frame. Relative positions
+    (``eef_to_<obj>_pos`` = object minus end-effector position, ``<a>_to_<b>_pos`` = b minus
+    a) are in the world frame.
+    """
+    out = {
+        "eef_pos": eef_pose[:3, 3],
+        "eef_quat": _quat(eef_pose[:3, :3], EEF_QUAT_REFERENCE),
+        "gripper_qpos": np.asarray(gripper_qpos, np.float64),
+    }
+    for o in objects:
+        t = object_poses[o]
+        out[f"{o}_pos"] = t[:3, 3]
+        out[f"{o}_quat"] = _quat(t[:3, :3], None)
+        out[f"eef_to_{o}_pos"] = t[:3, 3] - eef_pose[:3, 3]
+    for i, a in enumerate(objects):
+        for b in objects[i + 1 :]:
+            out[f"{a}_to_{b}_pos"] = object_poses[b][:3, 3] - object_poses[a][:3, 3]
+    return {k: np.asarray(v, np.float32) for k, v in out.items()}
+
+
+def observation_dims(objects: Sequence[str]) -> dict[str, int]:
+    """Width of every observation key of a task with these objects."""
+    eye = np.eye(4)
+    obs = low_dim_observation(eye, np.zeros(2), {o: eye for o in objects}, objects)
+    return {k: int(v.size) for k, v in obs.items()}

@@ -1,0 +1,250 @@
+"""Behavioural cloning on episode stores: dataset assembly, episode-aware sequence
+sampling, the training loop and checkpoints."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
+from mimicgen_pipe.store import EpisodeStore
+
+CHECKPOINT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training profile. lr: Adam learning rate. epochs x steps_per_epoch gradient steps
+    on batches of batch_size windows of seq_len steps; a checkpoint every checkpoint_every
+    epochs (and at the last). val_fraction: share of episodes held out for validation."""
+
+    hidden: int
+    layers: int
+    seq_len: int
+    batch_size: int
+    lr: float
+    epochs: int
+    steps_per_epoch: int
+    checkpoint_every: int
+    val_fraction: float = 0.1
+    modes: int = 5
+    device: str = "cpu"
+
+
+@dataclass(frozen=True)
+class SequenceData:
+    """Episodes concatenated: obs (N, D) float32, actions (N, A) float32, episode_ends (E,)
+    cumulative exclusive ends."""
+
+    obs: np.ndarray
+    actions: np.ndarray
+    episode_ends: np.ndarray
+
+    @property
+    def episode_starts(self) -> np.ndarray:
+        return np.concatenate([[0], self.episode_ends[:-1]]).astype(np.int64)
+
+    @property
+    def n_episodes(self) -> int:
+        return len(self.episode_ends)
+
+
+def dataset_from_store(
+    store: EpisodeStore, obs_keys: Sequence[str], num_demos: int | None = None
+) -> tuple[SequenceData, tuple[int, ...]]:
+    """The successful episodes of ``store`` (the first ``num_demos`` of them when given) as
+    (observations from ``obs/<key>`` in ``obs_keys`` order, actions). Returns the data and
+    each key's width. Raises InputError naming the store and what is missing."""
+    available = sorted(k[4:] for k in store.data if k.startswith("obs/"))
+    missing = [k for k in obs_keys if f"obs/{k}" not in store.data]
+    if missing:
+        raise InputError(
+            f"{store.path}: observation keys {missing} not in the store "
+            f"(data/obs/ has: {', '.join(available) or 'nothing'})"
+        )
+    if "actions" not in store.data:
+        raise InputError(f"{store.path}: data/actions missing")
+    success = np.asarray(store.episodes.get("success", np.ones(store.n_episodes, bool)), bool)
+    keep = np.flatnonzero(success)
+    if len(keep) == 0:
+        raise InputError(f"{store.path}: no successful episodes ({store.n_episodes} in the store)")
+    if num_demos is not None:
+        if len(keep) < num_demos:
+            raise InputError(
+                f"{store.path}: {len(keep)} successful episodes, {num_demos} wanted "
+                "(generate more or lower train.num_demos)"
+            )
+        keep = keep[:num_demos]
+    starts, ends = store.episode_starts, store.episode_ends
+    index = np.concatenate([np.arange(starts[i], ends[i]) for i in keep])
+    dims = tuple(int(np.prod(store.data[f"obs/{k}"].shape[1:])) for k in obs_keys)
+    obs = np.concatenate(
+        [store.data[f"obs/{k}"].reshape(len(store.data["actions"]), -1)[index] for k in obs_keys],
+        axis=1,
+    ).astype(np.float32)
+    if not np.isfinite(obs).all():
+        raise InputError(f"{store.path}: non-finite observations in {list(obs_keys)}")
+    lengths = ends[keep] - starts[keep]
+    data = SequenceData(
+        obs, store.data["actions"][index].astype(np.float32), np.cumsum(lengths).astype(np.int64)
+    )
+    return data, dims
+
+
+def subset(data: SequenceData, episodes: np.ndarray) -> SequenceData:
+    starts, ends = data.episode_starts, data.episode_ends
+    index = np.concatenate([np.arange(starts[i], ends[i]) for i in episodes])
+    return SequenceData(
+        data.obs[index], data.actions[index], np.cumsum(ends[episodes] - starts[episodes])
+    )
+
+
+def split_episodes(
+    n_episodes: int, val_fraction: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """(train, validation) episode indices, by episode; at least one of each when n >= 2."""
+    n_val = int(round(n_episodes * val_fraction))
+    if val_fraction > 0 and n_episodes >= 2:
+        n_val = min(max(n_val, 1), n_episodes - 1)
+    perm = rng.permutation(n_episodes)
+    return np.sort(perm[n_val:]), np.sort(perm[:n_val])
+
+
+def window_index(data: SequenceData, starts: np.ndarray, seq_len: int) -> np.ndarray:
+    """(B, seq_len) step indices of windows beginning at ``starts``; a window running past
+    its episode's end repeats the last step (robomimic's sequence padding)."""
+    ep = np.searchsorted(data.episode_ends, starts, side="right")
+    last = data.episode_ends[ep] - 1
+    return np.minimum(starts[:, None] + np.arange(seq_len), last[:, None])
+
+
+def validation_windows(data: SequenceData, seq_len: int, limit: int = 2000) -> np.ndarray:
+    """Fixed validation windows: every seq_len-th step of every episode (at most ``limit``)."""
+    starts = np.concatenate(
+        [
+            np.arange(s, e, seq_len)
+            for s, e in zip(data.episode_starts, data.episode_ends, strict=False)
+        ]
+    )
+    starts = starts[np.linspace(0, len(starts) - 1, min(limit, len(starts))).astype(int)]
+    return window_index(data, starts, seq_len)
+
+
+def save_checkpoint(path: Path, model: BCRNN, meta: dict[str, Any]) -> None:
+    """Write atomically: a checkpoint file is complete or absent."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save(
+        {
+            "version": CHECKPOINT_VERSION,
+            "config": model.config.as_dict(),
+            "state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
+            "meta": meta,
+        },
+        tmp,
+    )
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | os.PathLike) -> tuple[BCRNN, dict[str, Any]]:
+    path = Path(path)
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
+        raise InputError(f"{path}: not a policy checkpoint ({exc})") from exc
+    try:
+        version = ckpt.get("version") if isinstance(ckpt, dict) else None
+        if version != CHECKPOINT_VERSION:
+            raise InputError(
+                f"{path}: checkpoint version {version!r}, expected {CHECKPOINT_VERSION}"
+            )
+        model = BCRNN(PolicyConfig.from_dict(ckpt["config"]))
+        model.load_state_dict(ckpt["state_dict"])
+    except (RuntimeError, KeyError, TypeError, AttributeError) as exc:
+        raise InputError(f"{path}: not a policy checkpoint ({exc})") from exc
+    return model, ckpt["meta"]
+
+
+def train_policy(
+    train_data: SequenceData,
+    val_data: SequenceData,
+    policy: PolicyConfig,
+    config: TrainConfig,
+    seed: int,
+    on_checkpoint: Callable[[int, BCRNN], None],
+    progress: Callable[[int, dict[str, float]], None] | None = None,
+) -> list[dict[str, float]]:
+    """Train one BC-RNN from ``seed``. Calls ``on_checkpoint(epoch, model)`` every
+    ``checkpoint_every`` epochs and after the last. Returns one row per epoch: epoch, step,
+    loss (training NLL, mean over the epoch), val_loss (NLL on fixed validation windows;
+    NaN without validation episodes), seconds."""
+    device = torch.device(config.device)
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    model = BCRNN(policy)
+    model.set_normalisation(train_data.obs.mean(0), train_data.obs.std(0))
+    model.to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    train_obs = torch.from_numpy(train_data.obs).to(device)
+    train_actions = torch.from_numpy(train_data.actions).to(device)
+    val_idx = validation_windows(val_data, config.seq_len) if val_data.n_episodes else None
+    history: list[dict[str, float]] = []
+    t0 = time.perf_counter()
+    for epoch in range(1, config.epochs + 1):
+        model.train()
+        total = 0.0
+        for _ in range(config.steps_per_epoch):
+            idx = torch.from_numpy(
+                window_index(
+                    train_data,
+                    rng.integers(0, len(train_data.obs), config.batch_size),
+                    config.seq_len,
+                )
+            ).to(device)
+            loss = nll_loss(model, train_obs[idx], train_actions[idx])
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            total += loss.item()
+        val = float("nan")
+        if val_idx is not None:
+            model.eval()
+            with torch.no_grad():
+                val = float(
+                    nll_loss(
+                        model,
+                        torch.from_numpy(val_data.obs[val_idx]).to(device),
+                        torch.from_numpy(val_data.actions[val_idx]).to(device),
+                    )
+                )
+        row = {
+            "epoch": epoch,
+            "step": epoch * config.steps_per_epoch,
+            "loss": total / config.steps_per_epoch,
+            "val_loss": val,
+            "seconds": time.perf_counter() - t0,
+        }
+        history.append(row)
+        if progress is not None:
+            progress(epoch, row)
+        if epoch % config.checkpoint_every == 0 or epoch == config.epochs:
+            on_checkpoint(epoch, model)  # save_checkpoint stores CPU tensors
+    return history
+
+
+def default_device() -> str:
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def load_rollout_policy(path: str) -> RolloutPolicy:
+    """A checkpoint as a policy for mimicgen_pipe.evaluation (picklable by name)."""
+    return RolloutPolicy(load_checkpoint(path)[0])

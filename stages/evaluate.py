@@ -1,0 +1,121 @@
+"""evaluate: roll out every checkpoint of a training run in one reset variant."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import functools
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+import envs
+from mimicgen_pipe import layout
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.evaluation import EvalJob, evaluation_seed, run_evaluation
+from mimicgen_pipe.metrics import evaluation_metrics, write_metrics
+from mimicgen_pipe.observations import observation_dims
+from mimicgen_pipe.params import load_params
+from mimicgen_pipe.training import load_checkpoint, load_rollout_policy
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    p.add_argument(
+        "--data", required=True, help='the policy\'s training data: "source" or a variant'
+    )
+    p.add_argument("--variant", required=True, help="reset variant to evaluate in, e.g. D1")
+    p.add_argument("--policies", help="checkpoint directory (default: data/policies/<task>_<data>)")
+    p.add_argument(
+        "--metrics", help="metrics JSON (default: metrics/evaluate_<task>_<data>_on_<variant>.json)"
+    )
+    p.add_argument("--plot", help="success per checkpoint CSV (default: plots/evaluate_<...>.csv)")
+
+
+def find_checkpoints(directory: Path) -> dict[int, list[Path]]:
+    """Training seed -> its checkpoints in epoch order (layout: seed<k>/epoch<NNNNN>.pt)."""
+    runs: dict[int, list[Path]] = {}
+    for run_dir in sorted(directory.glob("seed*")):
+        ckpts = sorted(run_dir.glob("epoch*.pt"))
+        if ckpts and run_dir.name[4:].isdigit():
+            runs[int(run_dir.name[4:])] = ckpts
+    if not runs:
+        raise InputError(f"{directory}: no checkpoints (expected seed<k>/epoch<N>.pt)")
+    return runs
+
+
+def run(args: argparse.Namespace) -> None:
+    params = load_params(args.params)
+    spec = envs.task_spec(params.backend, params.task)
+    envs.check_variant(spec, args.variant)
+    name = f"{args.data}_on_{args.variant}"
+    policies = Path(args.policies or layout.policy_dir(params.task, args.data))
+    metrics_path = Path(args.metrics or layout.metrics_file("evaluate", params.task, name))
+    plot_path = Path(args.plot or layout.plot_file("evaluate", params.task, name))
+
+    runs = find_checkpoints(policies)
+    expected = observation_dims(spec.objects)
+    epochs: dict[Path, int] = {}
+    for ckpt in (c for ckpts in runs.values() for c in ckpts):
+        model, meta = load_checkpoint(ckpt)
+        layout_ = dict(zip(model.config.obs_keys, model.config.obs_dims, strict=True))
+        wrong = {k: d for k, d in layout_.items() if expected.get(k) != d}
+        if meta.get("task") != params.task or wrong:
+            raise InputError(
+                f"{ckpt}: observation layout {layout_} (task {meta.get('task')!r}) does not fit "
+                f"task {params.task!r}, whose observations are {expected}"
+            )
+        if list(model.config.obs_keys) != list(params.train.obs_keys):
+            raise InputError(
+                f"{ckpt}: trained on observation keys {list(model.config.obs_keys)}, but "
+                f"params train.obs_keys is {list(params.train.obs_keys)}"
+            )
+        epochs[ckpt] = int(meta["epoch"])
+
+    e = params.evaluate
+    seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
+    job = EvalJob(
+        make_env=functools.partial(envs.make_env, params.backend, params.task, params.robot),
+        load_policy=load_rollout_policy,
+        variant=args.variant,
+        horizon=spec.horizon,
+        objects=spec.objects,
+    )
+    names = [str(c) for ckpts in runs.values() for c in ckpts]
+    success: dict[str, list[bool]] = {n: [] for n in names}
+    t0 = time.perf_counter()
+    bar = tqdm(total=len(names) * e.episodes, desc=f"evaluate {name}", unit="episode")
+    results = run_evaluation(job, names, seeds, e.workers)
+    try:
+        for ckpt, rollouts in results:
+            success[ckpt] += [r.success for r in rollouts]
+            bar.update(len(rollouts))
+    finally:
+        results.close()
+        bar.close()
+    wall = time.perf_counter() - t0
+
+    per_run = {
+        seed: [(epochs[c], 100.0 * float(np.mean(success[str(c)]))) for c in ckpts]
+        for seed, ckpts in runs.items()
+    }
+    plot_path.parent.mkdir(parents=True, exist_ok=True)
+    with plot_path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["seed", "epoch", "success_rate"])
+        writer.writerows((s, ep, rate) for s, rows in per_run.items() for ep, rate in rows)
+    metrics = evaluation_metrics(per_run)
+    metrics.update(
+        episodes=e.episodes,
+        horizon=spec.horizon,
+        wall_seconds=wall,
+        seconds_per_episode=wall / (len(names) * e.episodes),
+        workers=e.workers,
+    )
+    write_metrics(metrics_path, metrics)
+    print(
+        f"evaluate {name}: success {metrics['success_rate_max']:.1f}% (max over checkpoints), "
+        f"{metrics['success_rate_last']:.1f}% (last checkpoint) -> {metrics_path}"
+    )

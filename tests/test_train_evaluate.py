@@ -1,0 +1,158 @@
+"""The train and evaluate stages on the small session pipeline, and the evaluator itself
+(needs SAPIEN; marked ``sim``)."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from mimicgen_pipe.evaluation import evaluation_seed, rollout
+from mimicgen_pipe.policy import BCRNN, PolicyConfig
+from mimicgen_pipe.store import read_store
+from mimicgen_pipe.training import save_checkpoint
+from tests.conftest import cli
+
+pytestmark = pytest.mark.sim
+
+TINY = """
+task: stack_cube
+source: {num_demos: 3, seed: 0}
+generate: {num_demos: 4, max_attempts: 12, workers: 1, seed: 7}
+train:
+  num_demos: 4
+  cpu: {hidden: 16, layers: 1, seq_len: 10, batch_size: 8, lr: 0.001, epochs: 2,
+        steps_per_epoch: 5, checkpoint_every: 1, seeds: [0, 1]}
+evaluate: {episodes: 2, workers: 1}
+"""
+
+
+@pytest.fixture(scope="module")
+def env():
+    from envs import make_env
+
+    e = make_env("maniskill", "stack_cube")
+    yield e
+    e.close()
+
+
+class ReplayPolicy:
+    """Plays one stored episode's actions, recording the observations it is shown."""
+
+    def __init__(self, actions: np.ndarray) -> None:
+        self.actions, self.seen = actions, []
+
+    def reset(self, seed: int) -> None:
+        self.t, self.seen = 0, []
+
+    def act(self, obs):
+        self.seen.append(obs)
+        self.t += 1
+        return self.actions[min(self.t, len(self.actions)) - 1]
+
+
+class ZeroPolicy:
+    def reset(self, seed: int) -> None:
+        pass
+
+    def act(self, obs):
+        return np.zeros(7, np.float32)
+
+
+def test_evaluator_scores_replayed_demos_100_and_a_still_arm_0(pipeline, env):
+    gen = read_store(pipeline / "data/generated/stack_cube_D1.zarr")
+    spec = env.spec
+    for ep in range(gen.n_episodes):
+        steps = gen.episode(ep)
+        policy = ReplayPolicy(steps["actions"])
+        r = rollout(env, policy, int(gen.episodes["seed"][ep]), "D1", spec.horizon, spec.objects)
+        assert r.success and r.steps <= len(steps["actions"]), ep
+        # the evaluator shows the policy the observations the generator recorded
+        for key in ("eef_pos", "cubeA_pos", "gripper_qpos", "eef_to_cubeB_pos"):
+            seen = np.stack([o[key] for o in policy.seen])
+            np.testing.assert_allclose(seen, steps[f"obs/{key}"][: len(seen)], atol=5e-3)
+    for i in range(3):
+        seed = evaluation_seed(0, "D1", i)
+        assert not rollout(env, ZeroPolicy(), seed, "D1", spec.horizon, spec.objects).success
+
+
+def test_train_and_evaluate_stages(pipeline):
+    (pipeline / "tiny.yaml").write_text(TINY)
+    cli("train", "--params", "tiny.yaml", "--data", "D1", cwd=pipeline)
+    cli("train", "--params", "tiny.yaml", "--data", "source", cwd=pipeline)
+    for seed in (0, 1):
+        ckpts = sorted(
+            p.name for p in (pipeline / f"data/policies/stack_cube_D1/seed{seed}").iterdir()
+        )
+        assert ckpts == ["epoch00001.pt", "epoch00002.pt"]
+    train = json.loads((pipeline / "metrics/train_stack_cube_D1.json").read_text())
+    assert (train["train_episodes"], train["val_episodes"], train["gradient_steps"]) == (3, 1, 20)
+    curve = list(csv.DictReader((pipeline / "plots/train_stack_cube_D1.csv").open()))
+    assert [(r["seed"], r["epoch"]) for r in curve] == [
+        ("0", "1"),
+        ("0", "2"),
+        ("1", "1"),
+        ("1", "2"),
+    ]
+    source = json.loads((pipeline / "metrics/train_stack_cube_source.json").read_text())
+    assert source["train_episodes"] + source["val_episodes"] == 3
+
+    cli("evaluate", "--params", "tiny.yaml", "--data", "D1", "--variant", "D1", cwd=pipeline)
+    m = json.loads((pipeline / "metrics/evaluate_stack_cube_D1_on_D1.json").read_text())
+    assert (m["seeds"], m["checkpoints"], m["episodes"], m["horizon"]) == (2, 2, 2, 200)
+    rows = list(csv.DictReader((pipeline / "plots/evaluate_stack_cube_D1_on_D1.csv").open()))
+    assert len(rows) == 4
+    rates = {(r["seed"], r["epoch"]): float(r["success_rate"]) for r in rows}
+    assert all(v in (0.0, 50.0, 100.0) for v in rates.values())  # 2 episodes per checkpoint
+    best = [max(rates[(s, "1")], rates[(s, "2")]) for s in ("0", "1")]
+    assert m["success_rate_max"] == pytest.approx(np.mean(best))
+    assert m["success_rate_last"] == pytest.approx(np.mean([rates[("0", "2")], rates[("1", "2")]]))
+
+
+def test_train_and_evaluate_refuse_bad_input_before_work(pipeline):
+    (pipeline / "tiny.yaml").write_text(TINY)
+    failed = "data/generated/stack_cube_D1_failed.zarr"
+    res = cli(
+        "train",
+        "--params",
+        "tiny.yaml",
+        "--data",
+        "D1",
+        "--store",
+        failed,
+        "--out",
+        "data/x",
+        cwd=pipeline,
+        check=False,
+    )
+    assert res.returncode == 2 and "no successful episodes" in res.stderr
+    assert not (pipeline / "data/x").exists()
+
+    (pipeline / "keys.yaml").write_text(
+        TINY.replace("num_demos: 4\n", "num_demos: 4\n  obs_keys: [eef_pos, cube_pose]\n")
+    )
+    res = cli("train", "--params", "keys.yaml", "--data", "D1", cwd=pipeline, check=False)
+    assert res.returncode == 2 and "['cube_pose'] not in the store" in res.stderr
+
+    other = pipeline / "data/other/seed0/epoch00001.pt"
+    model = BCRNN(PolicyConfig(("eef_pos", "cubeA_pos"), (3, 4), 7, hidden=4, layers=1))
+    save_checkpoint(other, model, {"task": "stack_cube", "epoch": 1})
+    res = cli(
+        "evaluate",
+        "--params",
+        "tiny.yaml",
+        "--data",
+        "D1",
+        "--variant",
+        "D1",
+        "--policies",
+        "data/other",
+        "--metrics",
+        "m.json",
+        cwd=pipeline,
+        check=False,
+    )
+    assert res.returncode == 2 and "observation layout" in res.stderr and "cubeA_pos" in res.stderr
+    assert not (pipeline / "m.json").exists()
