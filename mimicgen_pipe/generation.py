@@ -11,6 +11,8 @@ import numpy as np
 
 from mimicgen_pipe import poses
 from mimicgen_pipe.controller import clip_actions
+from mimicgen_pipe.observations import low_dim_observation
+from mimicgen_pipe.pose_noise import PoseNoise, generation_rng, perturb_pose
 from mimicgen_pipe.segments import segment_bounds
 from mimicgen_pipe.taskspec import TaskSpec
 
@@ -25,6 +27,9 @@ class Env(Protocol):
 
     def eef_pose(self) -> np.ndarray: ...
     def object_poses(self) -> dict[str, np.ndarray]: ...
+    def gripper_state(self) -> np.ndarray:
+        """Finger joint positions [m]."""
+
     def step(self, action: np.ndarray) -> None: ...
     def subtask_signals(self) -> dict[str, bool]: ...
     def is_success(self) -> bool: ...
@@ -108,7 +113,8 @@ def add_action_noise(actions: np.ndarray, sigma: float, rng: np.random.Generator
 
 @dataclass(frozen=True)
 class GenerationConfig:
-    """The method's knobs (paper M.6 defaults)."""
+    """The method's knobs (paper M.6 defaults). pose_noise: the pose-estimation error on the
+    reference object's pose observed at the start of each subtask (paper T)."""
 
     action_noise: float = 0.05
     n_interp: int = 5
@@ -116,6 +122,7 @@ class GenerationConfig:
     selection: SelectionStrategy = "random"
     nn_k: int = 3
     per_subtask: bool = False
+    pose_noise: PoseNoise = PoseNoise()
 
 
 @dataclass(frozen=True)
@@ -168,6 +175,7 @@ def run_attempt(
     interpolation from the current end-effector pose, and execute it as noisy delta-pose
     actions. Success is the task's success after the last step."""
     rng = np.random.default_rng(seed)
+    pose_rng = generation_rng(seed)
     env.reset(seed=seed, variant=variant)
     initial_state = env.get_state()
     obj_now = env.object_poses()
@@ -189,7 +197,9 @@ def run_attempt(
     reached = np.zeros(len(spec.subtasks), dtype=bool)
     demo = -1
     for i, sub in enumerate(spec.subtasks):
-        ref_now = obj_now[sub.reference_object]
+        # the reference object's pose as a pose estimator reports it (paper T); the simulator's
+        # true poses are untouched, and they are what gets recorded
+        ref_now = perturb_pose(obj_now[sub.reference_object], config.pose_noise, pose_rng)
         if demo < 0 or config.per_subtask:
             seg_starts = starts + bounds[:, i, 0]
             candidates = sources.object_poses[sub.reference_object][seg_starts]
@@ -226,7 +236,8 @@ def run_attempt(
 class StepRecorder:
     """Collects the per-step record of an episode, observed before each step's action:
     actions, eef_pose, target_pose, gripper, env_state, object_poses/<obj>,
-    subtask_signals/<name>."""
+    subtask_signals/<name>, and the policy observation obs/<key> (mimicgen_pipe.observations).
+    """
 
     def __init__(self, objects: tuple[str, ...]) -> None:
         self.objects = objects
@@ -250,6 +261,8 @@ class StepRecorder:
         }
         row.update({f"object_poses/{o}": object_poses[o] for o in self.objects})
         row.update({f"subtask_signals/{n}": v for n, v in sig.items()})
+        obs = low_dim_observation(eef, env.gripper_state(), object_poses, self.objects)
+        row.update({f"obs/{k}": v for k, v in obs.items()})
         for key, value in row.items():
             self.rows.setdefault(key, []).append(value)
         return sig

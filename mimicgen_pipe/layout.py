@@ -14,6 +14,26 @@ def parsed_store(task: str) -> Path:
     return Path("data/parsed") / f"{task}.zarr"
 
 
+def pose_noise_store(task: str) -> Path:
+    """The parsed source demos as the generator observes them (pose_noise stage; an
+    unperturbed copy at level none)."""
+    return Path("data/pose_noise") / f"{task}.zarr"
+
+
+def heatmap_file(task: str, variant: str) -> Path:
+    """The coverage stage's heat maps of initial object positions."""
+    return Path("plots") / f"coverage_{task}_{variant}.png"
+
+
+def report_dir() -> Path:
+    return Path("report")
+
+
+def ablations_dir() -> Path:
+    """Saved ablation runs: one folder per run with its params.yaml and metrics JSON files."""
+    return Path("metrics/ablations")
+
+
 def generated_store(task: str, variant: str, failed: bool = False) -> Path:
     return Path("data/generated") / f"{task}_{variant}{'_failed' if failed else ''}.zarr"
 
@@ -21,3 +41,18 @@ def generated_store(task: str, variant: str, failed: bool = False) -> Path:
 def metrics_file(stage: str, task: str, variant: str | None = None) -> Path:
     name = f"{stage}_{task}" + (f"_{variant}" if variant else "")
     return Path("metrics") / f"{name}.json"
+
+
+def training_store(task: str, data: str) -> Path:
+    """The store a policy trains on: ``data`` is "source" (the source demos) or a reset
+    variant (that variant's generated store)."""
+    return source_store(task) if data == "source" else generated_store(task, data)
+
+
+def policy_dir(task: str, data: str) -> Path:
+    """Checkpoints of every training seed: <dir>/seed<k>/epoch<NNNNN>.pt."""
+    return Path("data/policies") / f"{task}_{data}"
+
+
+def plot_file(stage: str, task: str, name: str) -> Path:
+    return Path("plots") / f"{stage}_{task}_{name}.csv"

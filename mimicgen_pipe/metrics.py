@@ -15,7 +15,11 @@ def write_metrics(path: str | os.PathLike, metrics: Mapping[str, Any]) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(dict(metrics), indent=2, sort_keys=True) + "\n")
+    # NaN/inf are not JSON; a value that could not be measured is written as null
+    clean = {
+        k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in metrics.items()
+    }
+    tmp.write_text(json.dumps(clean, indent=2, sort_keys=True) + "\n")
     tmp.replace(path)
     return path
 
@@ -35,4 +39,26 @@ def generation_metrics(
     }
     for i, name in enumerate(subtasks):
         out[f"failures_{name}"] = int(np.sum(failed_subtask == i))
+    return out
+
+
+def evaluation_metrics(per_run: Mapping[int, list[tuple[int, float]]]) -> dict[str, Any]:
+    """Success rates [%] of the paper's protocol and the honest one, from
+    training seed -> [(epoch, success rate of that checkpoint)] in epoch order:
+    success_rate_max (max over a run's checkpoints) and success_rate_last (its last
+    checkpoint), each as mean and std (population) over training seeds, plus per seed."""
+    best = np.array([max(rate for _, rate in rows) for rows in per_run.values()])
+    last = np.array([rows[-1][1] for rows in per_run.values()])
+    out: dict[str, Any] = {
+        "seeds": len(per_run),
+        "checkpoints": int(np.mean([len(rows) for rows in per_run.values()])),
+        "success_rate_max": float(best.mean()),
+        "success_rate_max_std": float(best.std()),
+        "success_rate_last": float(last.mean()),
+        "success_rate_last_std": float(last.std()),
+    }
+    for (seed, rows), b, la in zip(per_run.items(), best, last, strict=True):
+        out[f"seed{seed}_success_rate_max"] = float(b)
+        out[f"seed{seed}_success_rate_last"] = float(la)
+        out[f"seed{seed}_best_epoch"] = int(max(rows, key=lambda r: r[1])[0])
     return out

@@ -7,8 +7,10 @@ unknown key stops the stage with one message naming the key.
 from __future__ import annotations
 
 import dataclasses
+import fnmatch
 import types
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -16,6 +18,7 @@ from typing import Any, Literal
 import yaml
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.pose_noise import level_error
 
 
 @dataclass(frozen=True)
@@ -50,12 +53,101 @@ class GenerateParams:
 
 
 @dataclass(frozen=True)
+class PoseNoiseParams:
+    """Pose-estimation error (paper T), applied to the object poses of the source demos (the
+    pose_noise stage) and to those the generator observes in each new scene. level: none,
+    L1 (5 mm / 5 deg), L2 (10 mm / 10 deg) or [position_mm, rotation_deg]. seed: seed of the
+    noise on the source demos (generation draws its own from each attempt's seed)."""
+
+    level: str | list[float] = "none"
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class CoverageParams:
+    """Support coverage (paper Q): bins per dimension (x, y, yaw) of every object's initial
+    pose over the variant's reset bounds."""
+
+    bins: int = 3
+
+
+DEFAULT_OBS_KEYS = [
+    "eef_pos",
+    "eef_quat",
+    "gripper_qpos",
+    "cubeA_pos",
+    "cubeA_quat",
+    "cubeB_pos",
+    "cubeB_quat",
+    "eef_to_cubeA_pos",
+    "eef_to_cubeB_pos",
+    "cubeA_to_cubeB_pos",
+]
+
+
+@dataclass(frozen=True)
+class TrainProfile:
+    """BC-RNN size and schedule (paper N; robomimic's BC-RNN). hidden x layers LSTM, windows
+    of seq_len steps, Adam at lr, epochs x steps_per_epoch gradient steps, a checkpoint every
+    checkpoint_every epochs; each training seed is its own run."""
+
+    hidden: int = 400
+    layers: int = 2
+    seq_len: int = 10
+    batch_size: int = 100
+    lr: float = 1e-3
+    lr_schedule: Literal["constant", "cosine"] = "constant"
+    epochs: int = 2000
+    steps_per_epoch: int = 100
+    checkpoint_every: int = 50
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    threads: int = 0  # torch CPU threads; 0 keeps torch's default
+    device: Literal["cpu", "cuda", "auto"] = "auto"  # auto: cuda when available
+
+
+@dataclass(frozen=True)
+class TrainParams:
+    """profile: which of the two profiles below trains. num_demos: generated demos used
+    (the first N kept episodes; the source policy uses every source demo). obs_keys: the
+    policy's observation, keys of obs/ in the stores (mimicgen_pipe.observations)."""
+
+    profile: Literal["cpu", "paper"] = "cpu"
+    num_demos: int = 1000
+    obs_keys: list[str] = field(default_factory=lambda: list(DEFAULT_OBS_KEYS))
+    val_fraction: float = 0.1
+    cpu: TrainProfile = field(
+        default_factory=lambda: TrainProfile(
+            hidden=100, epochs=200, checkpoint_every=25, seeds=[0], threads=1, device="cpu"
+        )
+    )
+    paper: TrainProfile = field(default_factory=TrainProfile)
+
+    @property
+    def active(self) -> TrainProfile:
+        return self.cpu if self.profile == "cpu" else self.paper
+
+
+@dataclass(frozen=True)
+class EvaluateParams:
+    """episodes: rollouts per checkpoint. seed: evaluation seed stream (reset seeds are
+    disjoint from generation's whatever its value). workers: simulator processes."""
+
+    episodes: int = 50
+    seed: int = 0
+    workers: int = 2
+
+
+@dataclass(frozen=True)
 class Params:
     task: str = "stack_cube"
     backend: Literal["maniskill"] = "maniskill"
     robot: str = "panda"
     source: SourceParams = field(default_factory=SourceParams)
     generate: GenerateParams = field(default_factory=GenerateParams)
+    pose_noise: PoseNoiseParams = field(default_factory=PoseNoiseParams)
+    coverage: CoverageParams = field(default_factory=CoverageParams)
+    train: TrainParams = field(default_factory=TrainParams)
+    evaluate: EvaluateParams = field(default_factory=EvaluateParams)
 
 
 _RANGES: dict[str, tuple[float, float]] = {
@@ -67,6 +159,27 @@ _RANGES: dict[str, tuple[float, float]] = {
     "generate.n_fixed": (0, 1000),
     "generate.nn_k": (1, 10_000),
     "generate.workers": (1, 256),
+    "coverage.bins": (1, 100),
+    "source.seed": (0, 2**29),  # reset seeds from 2**30 on are evaluation's
+    "train.num_demos": (1, 10_000_000),
+    "train.val_fraction": (0.0, 0.5),
+    "train.*.hidden": (1, 8192),
+    "train.*.layers": (1, 16),
+    "train.*.seq_len": (1, 1000),
+    "train.*.batch_size": (1, 100_000),
+    "train.*.lr": (1e-8, 1.0),
+    "train.*.epochs": (1, 1_000_000),
+    "train.*.steps_per_epoch": (1, 1_000_000),
+    "train.*.checkpoint_every": (1, 1_000_000),
+    "train.*.threads": (0, 1024),
+    "evaluate.episodes": (1, 100_000),
+    "evaluate.workers": (1, 256),
+}
+
+# Keys whose values need more than a type and a range: key -> why the value is wrong (None
+# when it is right).
+_CHECKS: dict[str, Callable[[Any], str | None]] = {
+    "pose_noise.level": level_error,
 }
 
 
@@ -122,11 +235,13 @@ def _build(cls: type, raw: Any, where: str, path: Path) -> Any:
         if dataclasses.is_dataclass(tp):
             kwargs[name] = _build(tp, value, key, path)
             continue
+        why = _CHECKS[key](value) if key in _CHECKS else None
+        if why:
+            raise InputError(f"{path}: {key}: {why}")
         if not _check(value, tp):
             raise InputError(f"{path}: {key}: expected {_describe(tp)}, got {value!r}")
-        if key in _RANGES:
-            lo, hi = _RANGES[key]
-            if not lo <= value <= hi:
+        for pattern, (lo, hi) in _RANGES.items():
+            if fnmatch.fnmatchcase(key, pattern) and not lo <= value <= hi:
                 raise InputError(f"{path}: {key}: expected a value in [{lo}, {hi}], got {value!r}")
         kwargs[name] = float(value) if tp is float else value
     return cls(**kwargs)

@@ -21,9 +21,10 @@ from mimicgen_pipe.taskspec import TaskSpec
 
 
 def attempt_seed(seed: int, variant: str, attempt: int) -> int:
-    """A 31-bit reset seed for one attempt (simulators take int32 seeds)."""
+    """A reset seed for one attempt, in [0, 2**30): simulators take int32 seeds, and
+    [2**30, 2**31) is kept for policy evaluation (mimicgen_pipe.evaluation)."""
     ss = np.random.SeedSequence([seed, int.from_bytes(variant.encode(), "little"), attempt])
-    return int(ss.generate_state(1, np.uint32)[0] & 0x7FFFFFFF)
+    return int(ss.generate_state(1, np.uint32)[0] & 0x3FFFFFFF)
 
 
 @dataclass(frozen=True)

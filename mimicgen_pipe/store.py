@@ -9,10 +9,11 @@ Each array is one chunk, so a store is a few dozen files for DVC to hash.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -84,10 +85,7 @@ def write_store(
     steps: one mapping per episode, key -> (T_i, ...) arrays (4x4 poses allowed).
     episodes: key -> (N_episodes, ...) per-episode fields.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
-    try:
+    with atomic_directory(path) as tmp:
         root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
         root.attrs.update({"schema_version": SCHEMA_VERSION, **attrs})
         lengths = np.array([len(next(iter(s.values()))) if s else 0 for s in steps], np.int64)
@@ -101,6 +99,19 @@ def write_store(
         ep = meta.create_group("episodes")
         for key, value in episodes.items():
             _write_array(ep, key, as_stored(value))
+    return Path(path)
+
+
+@contextlib.contextmanager
+def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary sibling directory of ``path``; when the block completes it replaces
+    ``path``, and when it raises (or is interrupted) it is removed and ``path`` is untouched."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+    tmp.mkdir()
+    try:
+        yield tmp
         backup = None
         if path.exists():
             backup = path.with_name(f".{path.name}.old-{uuid.uuid4().hex[:8]}")
@@ -111,7 +122,6 @@ def write_store(
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)
-    return path
 
 
 def _read_group(group: zarr.Group, prefix: str = "") -> dict[str, np.ndarray]:

@@ -38,6 +38,7 @@ class TrainConfig:
     val_fraction: float = 0.1
     modes: int = 5
     device: str = "cpu"
+    lr_schedule: str = "constant"  # or "cosine": anneal to lr / 100 over the run
 
 
 @dataclass(frozen=True)
@@ -194,6 +195,12 @@ def train_policy(
     model.set_normalisation(train_data.obs.mean(0), train_data.obs.std(0))
     model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    total_steps = config.epochs * config.steps_per_epoch
+    schedule = (
+        torch.optim.lr_scheduler.CosineAnnealingLR(opt, total_steps, eta_min=config.lr / 100)
+        if config.lr_schedule == "cosine"
+        else None
+    )
     train_obs = torch.from_numpy(train_data.obs).to(device)
     train_actions = torch.from_numpy(train_data.actions).to(device)
     val_idx = validation_windows(val_data, config.seq_len) if val_data.n_episodes else None
@@ -214,6 +221,8 @@ def train_policy(
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
+            if schedule is not None:
+                schedule.step()
             total += loss.item()
         val = float("nan")
         if val_idx is not None:

@@ -16,6 +16,7 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.generation import GenerationConfig, SourceDemos
 from mimicgen_pipe.metrics import generation_metrics, write_metrics
 from mimicgen_pipe.params import as_dict, load_params
+from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.runner import AttemptJob, attempt_seed, run_attempts
 from mimicgen_pipe.store import EpisodeStore, read_store, write_store
 
@@ -23,7 +24,11 @@ from mimicgen_pipe.store import EpisodeStore, read_store, write_store
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
     p.add_argument("--variant", required=True, help="reset variant, e.g. D0 or D1")
-    p.add_argument("--parsed", help="parsed source store (default: data/parsed/<task>.zarr)")
+    p.add_argument(
+        "--parsed",
+        help="parsed source store as the pose_noise stage wrote it (default: "
+        "data/pose_noise/<task>.zarr); a clean parsed store is accepted at level none",
+    )
     p.add_argument(
         "--out",
         help="generated store (default: data/generated/<task>_<variant>.zarr;"
@@ -50,7 +55,7 @@ def run(args: argparse.Namespace) -> None:
     g = params.generate
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
-    parsed_path = Path(args.parsed or layout.parsed_store(params.task))
+    parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
     out = Path(args.out or layout.generated_store(params.task, args.variant))
     failed_out = out.with_name(out.name.replace(".zarr", "_failed.zarr"))
     metrics_path = Path(args.metrics or layout.metrics_file("generate", params.task, args.variant))
@@ -67,8 +72,10 @@ def run(args: argparse.Namespace) -> None:
         raise InputError(
             f"{parsed_path}: attrs.task is {store.attrs.get('task')!r}, expected {params.task!r}"
         )
+    pose_noise = pose_noise_level(params.pose_noise.level)
+    check_store_noise(store.attrs, pose_noise, params.pose_noise.seed, parsed_path)
     config = GenerationConfig(
-        g.action_noise, g.n_interp, g.n_fixed, g.selection, g.nn_k, g.per_subtask
+        g.action_noise, g.n_interp, g.n_fixed, g.selection, g.nn_k, g.per_subtask, pose_noise
     )
     job = AttemptJob(
         make_env=functools.partial(envs.make_env, params.backend, params.task, params.robot),

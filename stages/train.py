@@ -89,6 +89,7 @@ def run(args: argparse.Namespace) -> None:
         prof.checkpoint_every,
         t.val_fraction,
         device=prof.device if prof.device != "auto" else default_device(),
+        lr_schedule=prof.lr_schedule,
     )
     meta = {
         "task": params.task,

@@ -1,5 +1,5 @@
 """Shared fixtures. Simulator tests are marked ``sim``; they share one small end-to-end run
-of the real pipeline (source -> parse -> generate) made once per session."""
+of the real pipeline (source -> parse -> pose_noise -> generate) made once per session."""
 
 from __future__ import annotations
 
@@ -44,6 +44,7 @@ def pipeline(tmp_path_factory) -> Path:
     (work / "params.yaml").write_text(SMALL_PARAMS)
     cli("source", cwd=work)
     cli("parse", cwd=work)
+    cli("pose_noise", cwd=work)
     cli("generate", "--variant", "D1", cwd=work)
     (work / "params2.yaml").write_text(SMALL_PARAMS.replace("workers: 1", "workers: 2"))
     cli(

@@ -11,7 +11,7 @@ import pytest
 
 from mimicgen_pipe.evaluation import evaluation_seed, rollout
 from mimicgen_pipe.policy import BCRNN, PolicyConfig
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe.store import read_store, write_store
 from mimicgen_pipe.training import save_checkpoint
 from tests.conftest import cli
 
@@ -113,7 +113,14 @@ def test_train_and_evaluate_stages(pipeline):
 
 def test_train_and_evaluate_refuse_bad_input_before_work(pipeline):
     (pipeline / "tiny.yaml").write_text(TINY)
-    failed = "data/generated/stack_cube_D1_failed.zarr"
+    gen = read_store(pipeline / "data/generated/stack_cube_D1.zarr")
+    failed = "data/none_succeeded.zarr"
+    write_store(
+        pipeline / failed,
+        [gen.episode(i) for i in range(gen.n_episodes)],
+        {**gen.episodes, "success": np.zeros(gen.n_episodes, bool)},
+        gen.attrs,
+    )
     res = cli(
         "train",
         "--params",

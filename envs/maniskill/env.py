@@ -170,6 +170,11 @@ class ManiSkillEnv:
         self._state_arts = [
             u.scene.articulations[n]._objs[0] for n in u.get_state_dict()["articulations"]
         ]
+        robot = u.agent.robot
+        self._robot = robot._objs[0]
+        self._finger_index = [
+            robot.active_joints.index(j) for j in robot.active_joints if "finger" in j.name
+        ]
 
     def step(self, action: np.ndarray) -> None:
         self._info = self._u.step(np.asarray(action, dtype=np.float32))[4]
@@ -184,6 +189,9 @@ class ManiSkillEnv:
         if self._objects is None:
             self._objects = {name: _matrix(a.pose) for name, a in self._actors.items()}
         return self._objects
+
+    def gripper_state(self) -> np.ndarray:
+        return np.asarray(self._robot.qpos, np.float64)[self._finger_index]
 
     def subtask_signals(self) -> dict[str, bool]:
         return {name: bool(self._info[key]) for name, key in self.task.signals.items()}

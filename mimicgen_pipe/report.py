@@ -1,0 +1,635 @@
+"""The report: our metrics beside the paper's numbers, as Markdown and HTML.
+
+Built only from what is present: every number in it comes from a metrics file of this run,
+of a saved ablation run, or from the paper's numbers file (each with the table it was read
+from). A metric that was not produced is written ``missing``; no row is made up.
+
+The report is a list of blocks (headings, text, tables, images) rendered twice, so the
+Markdown and the HTML say the same thing.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+import re
+import statistics
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.params import Params
+from mimicgen_pipe.pose_noise import NAMED_LEVELS
+
+MISSING = "missing"
+
+# The generation settings an ablation may change (params keys); the paper's entries name
+# theirs with the same keys.
+METHOD_KEYS = (
+    "generate.action_noise",
+    "generate.selection",
+    "generate.nn_k",
+    "generate.per_subtask",
+    "generate.n_interp",
+    "generate.n_fixed",
+    "pose_noise.level",
+    "pose_noise.seed",
+    "generate.seed",
+)
+METRIC_LABELS = {"dgr": "DGR", "sr_low_dim": "SR low-dim", "sr_image": "SR image"}
+
+
+# --- blocks -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Heading:
+    level: int
+    text: str
+
+
+@dataclass(frozen=True)
+class Text:
+    """A paragraph; `code` spans are kept in both renderings."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class Table:
+    columns: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+
+
+@dataclass(frozen=True)
+class Image:
+    """An image file, referred to by its name in the report's folder."""
+
+    name: str
+    alt: str
+
+
+Block = Heading | Text | Table | Image
+
+
+def _md_cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def render_markdown(blocks: Sequence[Block]) -> str:
+    out: list[str] = []
+    for b in blocks:
+        if isinstance(b, Heading):
+            out.append(f"{'#' * b.level} {b.text}")
+        elif isinstance(b, Text):
+            out.append(b.text)
+        elif isinstance(b, Table):
+            out.append("| " + " | ".join(_md_cell(c) for c in b.columns) + " |")
+            out.append("|" + "---|" * len(b.columns))
+            out.extend("| " + " | ".join(_md_cell(c) for c in row) + " |" for row in b.rows)
+        elif isinstance(b, Image):
+            out.append(f"![{b.alt}]({b.name})")
+        out.append("")
+    return "\n".join(out)
+
+
+def _inline_html(text: str) -> str:
+    parts = html.escape(text).split("`")
+    return "".join(f"<code>{p}</code>" if i % 2 else p for i, p in enumerate(parts))
+
+
+def render_html(blocks: Sequence[Block], images: Mapping[str, bytes], title: str) -> str:
+    """One self-contained HTML page; ``images`` maps Image names to PNG bytes (embedded)."""
+    body: list[str] = []
+    for b in blocks:
+        if isinstance(b, Heading):
+            body.append(f"<h{b.level}>{_inline_html(b.text)}</h{b.level}>")
+        elif isinstance(b, Text):
+            body.append(f"<p>{_inline_html(b.text)}</p>")
+        elif isinstance(b, Table):
+            head = "".join(f"<th>{_inline_html(c)}</th>" for c in b.columns)
+            rows = "".join(
+                "<tr>" + "".join(f"<td>{_inline_html(c)}</td>" for c in row) + "</tr>"
+                for row in b.rows
+            )
+            body.append(f"<table><thead><tr>{head}</tr></thead><tbody>{rows}</tbody></table>")
+        elif isinstance(b, Image):
+            if b.name in images:
+                data = base64.b64encode(images[b.name]).decode("ascii")
+                src = f"data:image/png;base64,{data}"
+            else:
+                src = html.escape(b.name)
+            body.append(f'<p><img src="{src}" alt="{html.escape(b.alt)}"></p>')
+    style = (
+        "body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em}"
+        "table{border-collapse:collapse;margin:1em 0}"
+        "th,td{border:1px solid #bbb;padding:.25em .6em;text-align:left}"
+        "th{background:#eee}img{max-width:100%}code{background:#f4f4f4}"
+    )
+    return (
+        "<!DOCTYPE html>\n<html><head><meta charset='utf-8'>"
+        f"<title>{html.escape(title)}</title><style>{style}</style></head>\n<body>\n"
+        + "\n".join(body)
+        + "\n</body></html>\n"
+    )
+
+
+# --- inputs -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PaperEntry:
+    """One number of the paper (see reference/paper_results.yaml for the fields)."""
+
+    table: str
+    task: str
+    variant: str
+    metric: str
+    value: float
+    std: float | None = None
+    data: str | None = None
+    condition: str = ""
+    settings: Mapping[str, Any] = field(default_factory=dict)
+
+    def cite(self) -> str:
+        spread = f" ± {self.std:.1f}" if self.std is not None else ""
+        return f"{self.value:.1f}{spread} (Table {self.table}, {self.task} {self.variant})"
+
+
+@dataclass(frozen=True)
+class PaperResults:
+    task_names: Mapping[str, str]
+    entries: tuple[PaperEntry, ...]
+
+    def find(self, **where: Any) -> list[PaperEntry]:
+        return [e for e in self.entries if all(getattr(e, k) == v for k, v in where.items())]
+
+
+def load_paper_results(path: str | Path) -> PaperResults:
+    """Read the paper's numbers; InputError naming the file and entry when malformed."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: paper results file not found")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML ({exc})") from exc
+    if not isinstance(raw, dict) or not isinstance(raw.get("entries"), list):
+        raise InputError(f"{path}: expected a mapping with a list under 'entries'")
+    entries = []
+    for i, e in enumerate(raw["entries"]):
+        where = f"{path}: entries[{i}]"
+        if not isinstance(e, dict):
+            raise InputError(f"{where}: expected a mapping, got {e!r}")
+        for key in ("table", "task", "variant", "metric", "value"):
+            if key not in e:
+                raise InputError(f"{where}: '{key}' missing")
+        if e["metric"] not in METRIC_LABELS:
+            raise InputError(f"{where}: metric {e['metric']!r} not one of {list(METRIC_LABELS)}")
+        unknown = sorted(set(e.get("settings") or {}) - set(METHOD_KEYS))
+        if unknown:
+            raise InputError(f"{where}: unknown settings key {unknown[0]!r}")
+        try:
+            entries.append(
+                PaperEntry(
+                    table=str(e["table"]),
+                    task=str(e["task"]),
+                    variant=str(e["variant"]),
+                    metric=str(e["metric"]),
+                    value=float(e["value"]),
+                    std=None if e.get("std") is None else float(e["std"]),
+                    data=None if e.get("data") is None else str(e["data"]),
+                    condition=str(e.get("condition", "")),
+                    settings=dict(e.get("settings") or {}),
+                )
+            )
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{where}: {exc}") from exc
+    return PaperResults(dict(raw.get("task_names") or {}), tuple(entries))
+
+
+@dataclass(frozen=True)
+class Run:
+    """A finished run: its params and its metrics files (file stem -> flat metrics)."""
+
+    name: str
+    params: Params
+    metrics: Mapping[str, Mapping[str, Any]]
+
+
+def method_settings(params: Params) -> dict[str, Any]:
+    """The generation settings of a run (METHOD_KEYS -> value); a pose-noise pair that equals
+    a named level is written as the name."""
+    out: dict[str, Any] = {}
+    for key in METHOD_KEYS:
+        section, name = key.split(".")
+        out[key] = getattr(getattr(params, section), name)
+    level = out["pose_noise.level"]
+    if not isinstance(level, str):
+        named = [n for n, v in NAMED_LEVELS.items() if tuple(map(float, level)) == v]
+        out["pose_noise.level"] = named[0] if named else list(level)
+    return out
+
+
+def _equal(a: Any, b: Any) -> bool:
+    if isinstance(a, bool) or isinstance(b, bool):
+        return a is b
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return math.isclose(a, b, abs_tol=1e-12)
+    return a == b
+
+
+def matches(settings: Mapping[str, Any], entry: PaperEntry) -> bool:
+    """Whether a run with ``settings`` is the paper's run of ``entry`` on its named keys."""
+    return all(_equal(settings.get(k), v) for k, v in entry.settings.items())
+
+
+def changed_settings(base: Mapping[str, Any], run: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: run[k] for k in METHOD_KEYS if not _equal(base.get(k), run.get(k))}
+
+
+def paper_deltas(
+    paper: PaperResults, variant: str, base: Mapping[str, Any], run: Mapping[str, Any]
+) -> list[tuple[PaperEntry, PaperEntry]]:
+    """Pairs (paper's run like ``base``, paper's run like ``run``) of one table, task and
+    metric on ``variant``, where the table varies every setting in which the runs differ."""
+    changed = changed_settings(base, run)
+    if not changed:
+        return []
+    pairs = []
+    groups: dict[tuple[str, str, str, str | None], list[PaperEntry]] = {}
+    for e in paper.entries:
+        if e.variant == variant and e.settings and set(changed) <= set(e.settings):
+            groups.setdefault((e.table, e.task, e.metric, e.data), []).append(e)
+    for entries in groups.values():
+        like_base = [e for e in entries if matches(base, e)]
+        like_run = [e for e in entries if matches(run, e)]
+        if len(like_base) == 1 and len(like_run) == 1 and like_base[0] is not like_run[0]:
+            pairs.append((like_base[0], like_run[0]))
+    return pairs
+
+
+# --- formatting -------------------------------------------------------------------------
+
+
+def fmt(value: Any, digits: int = 1) -> str:
+    """A metric for a table cell: ``missing`` when absent."""
+    if value is None:
+        return MISSING
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return str(value)
+    if isinstance(value, int):
+        return str(value)
+    return f"{value:.{digits}f}"
+
+
+def fmt_pm(mean: Any, std: Any) -> str:
+    if mean is None:
+        return MISSING
+    return fmt(mean) if std is None else f"{fmt(mean)} ± {fmt(std)}"
+
+
+def fmt_setting(key: str, value: Any) -> str:
+    """``key=value`` as params.yaml would spell it (generate's keys without the section)."""
+    name = key.split(".", 1)[1] if key.startswith("generate.") else key
+    text = str(value).lower() if isinstance(value, bool) else str(value)
+    return f"{name}={text}"
+
+
+def _delta(a: Any, b: Any) -> str:
+    if a is None or b is None:
+        return MISSING
+    return f"{b - a:+.1f}"
+
+
+def _dgr_stderr(m: Mapping[str, Any] | None) -> float | None:
+    """Binomial standard error [points] of a run's DGR."""
+    if not m or not m.get("attempts"):
+        return None
+    p = m["dgr"] / 100.0
+    return 100.0 * math.sqrt(p * (1 - p) / m["attempts"])
+
+
+# --- the report -------------------------------------------------------------------------
+
+
+def build_report(
+    task: str,
+    variants: Sequence[str],
+    run: Run,
+    ablations: Sequence[Run],
+    paper: PaperResults,
+    heatmaps: Mapping[str, str],
+) -> list[Block]:
+    """The report's blocks. ``run``: this workspace's run; ``ablations``: saved ablation runs;
+    ``heatmaps``: variant -> image name of its coverage heat maps (only those present)."""
+    paper_task = paper.task_names.get(task, task)
+    settings = method_settings(run.params)
+    m = run.metrics
+    blocks: list[Block] = [
+        Heading(1, f"MimicGen on {task}: our numbers and the paper's"),
+        Text(
+            f"Our task `{task}` is set beside the paper's {paper_task} task. Paper numbers "
+            "come from `reference/paper_results.yaml`, each with the table it was read from; "
+            f"ours from the metrics files of this run. `{MISSING}` marks a metric this run "
+            "did not produce. Generation settings: "
+            + ", ".join(f"`{fmt_setting(k, v)}`" for k, v in settings.items())
+            + "."
+        ),
+    ]
+
+    # Data generation rates
+    blocks.append(Heading(2, "Data generation rate (DGR, %)"))
+    rows = []
+    for v in variants:
+        g = m.get(f"generate_{task}_{v}")
+        headline = paper.find(table="O.1", task=paper_task, variant=v, metric="dgr")
+        same = [
+            e
+            for e in paper.find(task=paper_task, variant=v, metric="dgr")
+            if e.settings and matches(settings, e)
+        ]
+        rows.append(
+            (
+                v,
+                fmt(g.get("attempts")) if g else MISSING,
+                fmt(g.get("successes")) if g else MISSING,
+                fmt(g.get("dgr")) if g else MISSING,
+                "; ".join(e.cite() for e in headline) or "not in paper",
+                "; ".join(f"{e.cite()} [{e.condition}]" for e in same) or "not in paper",
+            )
+        )
+    blocks.append(
+        Table(
+            (
+                "variant",
+                "attempts",
+                "successes",
+                "DGR ours",
+                "paper (its settings)",
+                "paper with our settings",
+            ),
+            tuple(rows),
+        )
+    )
+    o1 = [e for e in paper.find(table="O.1", task=paper_task) if e.settings]
+    if o1 and not matches(settings, o1[0]):
+        blocks.append(
+            Text(
+                f"The paper generated {paper_task} with "
+                + ", ".join(f"`{fmt_setting(k, v)}`" for k, v in o1[0].settings.items())
+                + "; the last column is the paper's run with the settings used here, where "
+                "one of its tables has it."
+            )
+        )
+
+    # Policy success rates
+    blocks.append(Heading(2, "Policy success rate (%, max over training, mean ± std over seeds)"))
+    expected = [
+        (e.data, e.variant) for e in paper.find(table="P.1", task=paper_task) if e.data is not None
+    ]
+    present = []
+    for stem in m:
+        hit = re.fullmatch(rf"evaluate_{re.escape(task)}_(.+)_on_(.+)", stem)
+        if hit:
+            present.append((hit.group(1), hit.group(2)))
+    rows = []
+    for data, v in list(dict.fromkeys(expected + sorted(present))):
+        ev = m.get(f"evaluate_{task}_{data}_on_{v}")
+        ref = paper.find(table="P.1", task=paper_task, data=data, variant=v)
+        rows.append(
+            (
+                "source demos" if data == "source" else f"generated {data}",
+                v,
+                fmt_pm(ev.get("success_rate_max"), ev.get("success_rate_max_std"))
+                if ev
+                else MISSING,
+                fmt_pm(ev.get("success_rate_last"), ev.get("success_rate_last_std"))
+                if ev
+                else MISSING,
+                f"{fmt(ev.get('episodes'))} × {fmt(ev.get('seeds'))}" if ev else MISSING,
+                "; ".join(e.cite() for e in ref) or "not in paper",
+            )
+        )
+    blocks.append(
+        Table(
+            (
+                "trained on",
+                "evaluated on",
+                "SR max ours",
+                "SR last ours",
+                "episodes × seeds",
+                "paper (low-dim)",
+            ),
+            tuple(rows),
+        )
+    )
+
+    # Coverage
+    blocks.append(Heading(2, "Support coverage of initial scenes (%, paper Q)"))
+    blocks.append(
+        Text(
+            "Each object's initial (x, y, yaw) binned over the variant's reset bounds; coverage "
+            "is the share of non-empty bins, per object and jointly over all objects, for the "
+            "generated (kept) scenes and for all attempted ones. `uniform` is what the same "
+            "number of scenes spread uniformly over the joint bins would cover on average; a "
+            "generated coverage well below it (and below the attempted one) means the kept "
+            "scenes are biased."
+        )
+    )
+    rows = []
+    for v in variants:
+        c = m.get(f"coverage_{task}_{v}")
+        objects = sorted(
+            k[len("support_coverage_") :]
+            for k in (c or {})
+            if k.startswith("support_coverage_") and k != "support_coverage_joint"
+        )
+        per_object = (
+            ", ".join(
+                f"{o} {fmt(c.get(f'support_coverage_{o}'))} "
+                f"({fmt(c.get(f'attempted_support_coverage_{o}'))})"
+                for o in objects
+            )
+            if c
+            else MISSING
+        )
+        rows.append(
+            (
+                v,
+                fmt(c.get("bins")) if c else MISSING,
+                f"{fmt(c.get('episodes'))} / {fmt(c.get('attempts'))}" if c else MISSING,
+                fmt(c.get("support_coverage_joint")) if c else MISSING,
+                fmt(c.get("attempted_support_coverage_joint")) if c else MISSING,
+                fmt(c.get("uniform_support_coverage_joint")) if c else MISSING,
+                per_object,
+            )
+        )
+    blocks.append(
+        Table(
+            (
+                "variant",
+                "bins per dim",
+                "generated / attempted",
+                "joint",
+                "joint attempted",
+                "joint uniform",
+                "per object (attempted)",
+            ),
+            tuple(rows),
+        )
+    )
+    blocks.append(
+        Text(
+            "The paper reports coverage for other tasks only (e.g. Coffee D1 98.8%, "
+            "Threading D1 71%, Appendix Q); it has no number for Stack."
+        )
+    )
+    for v in variants:
+        if v in heatmaps:
+            blocks.append(Image(heatmaps[v], f"initial object positions, {task} {v}"))
+        else:
+            blocks.append(Text(f"Heat maps for {v}: {MISSING}."))
+
+    blocks.extend(_ablation_blocks(task, settings, ablations, paper))
+    return blocks
+
+
+def _ablation_blocks(
+    task: str, settings: Mapping[str, Any], ablations: Sequence[Run], paper: PaperResults
+) -> list[Block]:
+    blocks: list[Block] = [Heading(2, "Ablations")]
+    if not ablations:
+        return blocks + [Text(f"No saved ablation runs ({MISSING}).")]
+    paper_task = paper.task_names.get(task, task)
+    runs = [(r, method_settings(r.params)) for r in ablations]
+    base = [(r, s) for r, s in runs if not changed_settings(settings, s)]
+    if not base:
+        return blocks + [
+            Text(
+                "No saved ablation run has this run's generation settings, so no deltas: "
+                f"{MISSING}. Runs saved: " + ", ".join(r.name for r in ablations) + "."
+            )
+        ]
+    base_run, base_settings = base[0]
+    blocks.append(
+        Text(
+            f"Each run against `{base_run.name}` (this run's settings, same attempts). Δ is in "
+            "points of DGR; ± is the binomial standard error of one run's DGR, so a Δ within "
+            "about twice it is noise. The paper column gives the same change in the paper's "
+            "table for the same reset variant (its base → changed value), on the task the "
+            "table holds. Coverage is the joint support coverage (paper Q) of the kept scenes, "
+            "beside what as many uniformly spread scenes would cover: with a fixed number of "
+            "attempts a lower DGR keeps fewer scenes, which alone covers fewer bins."
+        )
+    )
+    rows = []
+    for r, s in sorted(runs, key=lambda rs: rs[0] is not base_run):  # the base first
+        for stem, gm in sorted(r.metrics.items()):
+            hit = re.fullmatch(rf"generate_{re.escape(task)}_(.+)", stem)
+            if not hit:
+                continue
+            v = hit.group(1)
+            bm = base_run.metrics.get(stem)
+            cm = r.metrics.get(f"coverage_{task}_{v}") or {}
+            bcm = base_run.metrics.get(f"coverage_{task}_{v}") or {}
+            pairs = paper_deltas(paper, v, base_settings, s)
+            pairs.sort(key=lambda p: (p[0].task != paper_task, p[0].table, p[0].task))
+            paper_cell = "; ".join(
+                f"{a.task} {METRIC_LABELS[a.metric]} {a.value:.1f} → {b.value:.1f} "
+                f"({b.value - a.value:+.1f}, Table {a.table})"
+                for a, b in pairs
+            )
+            changed = changed_settings(base_settings, s)
+            if set(changed) == {"generate.seed"}:
+                paper_cell = "spread over seeds: Table S.1, below"
+            se = _dgr_stderr(gm)
+            rows.append(
+                (
+                    r.name,
+                    ", ".join(fmt_setting(k, x) for k, x in changed.items()) or "(base)",
+                    v,
+                    fmt(gm.get("attempts")),
+                    f"{fmt(gm.get('dgr'))} ± {fmt(se)}" if se is not None else fmt(gm.get("dgr")),
+                    "" if not changed else _delta(bm and bm.get("dgr"), gm.get("dgr")),
+                    f"{fmt(cm.get('support_coverage_joint'))} "
+                    f"({fmt(cm.get('uniform_support_coverage_joint'))})",
+                    ""
+                    if not changed
+                    else _delta(
+                        bcm.get("support_coverage_joint"), cm.get("support_coverage_joint")
+                    ),
+                    paper_cell or ("" if not changed else "not in paper"),
+                )
+            )
+    blocks.append(
+        Table(
+            (
+                "run",
+                "changed",
+                "variant",
+                "attempts",
+                "DGR ours",
+                "Δ DGR",
+                "joint coverage (uniform)",
+                "Δ coverage",
+                "paper",
+            ),
+            tuple(rows),
+        )
+    )
+    blocks.extend(_seed_spread(task, base_run, base_settings, runs, paper))
+    return blocks
+
+
+def _seed_spread(
+    task: str,
+    base_run: Run,
+    base_settings: Mapping[str, Any],
+    runs: Sequence[tuple[Run, Mapping[str, Any]]],
+    paper: PaperResults,
+) -> list[Block]:
+    """DGR spread over runs that differ from the base in the generation seed only (S.1)."""
+    seeds = [
+        (r, s) for r, s in runs if set(changed_settings(base_settings, s)) <= {"generate.seed"}
+    ]
+    if len(seeds) < 2:
+        return []
+    rows = []
+    variants = sorted(
+        {
+            stem.rsplit("_", 1)[1]
+            for r, _ in seeds
+            for stem in r.metrics
+            if stem.startswith(f"generate_{task}_")
+        }
+    )
+    for v in variants:
+        dgr = [
+            r.metrics[f"generate_{task}_{v}"]["dgr"]
+            for r, _ in seeds
+            if f"generate_{task}_{v}" in r.metrics
+        ]
+        ref = paper.find(table="S.1", variant=v)
+        rows.append(
+            (
+                v,
+                ", ".join(str(s["generate.seed"]) for _, s in seeds),
+                ", ".join(fmt(d) for d in dgr),
+                fmt_pm(statistics.mean(dgr), statistics.stdev(dgr)) if len(dgr) >= 2 else MISSING,
+                f"{max(dgr) - min(dgr):.1f}" if dgr else MISSING,
+                "; ".join(e.cite() for e in ref) or "not in paper",
+            )
+        )
+    return [
+        Heading(3, "Generation seed (Table S.1)"),
+        Table(
+            ("variant", "seeds", "DGR per seed", "mean ± std", "max − min", "paper (3 seeds)"),
+            tuple(rows),
+        ),
+    ]

@@ -1,0 +1,86 @@
+"""report: report.md and report.html from every metric present, beside the paper's numbers."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from mimicgen_pipe import layout
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.params import load_params
+from mimicgen_pipe.report import (
+    Run,
+    build_report,
+    load_paper_results,
+    render_html,
+    render_markdown,
+)
+from mimicgen_pipe.store import atomic_directory
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    p.add_argument("--metrics", default="metrics", help="metrics folder (default: metrics)")
+    p.add_argument(
+        "--ablations",
+        help="saved ablation runs, one folder each with params.yaml and metrics JSON files "
+        "(default: metrics/ablations)",
+    )
+    p.add_argument("--plots", default="plots", help="folder of the heat maps (default: plots)")
+    p.add_argument(
+        "--paper",
+        default="reference/paper_results.yaml",
+        help="the paper's numbers (default: reference/paper_results.yaml)",
+    )
+    p.add_argument("--out", help="report folder (default: report)")
+
+
+def read_metrics(folder: Path) -> dict[str, dict[str, Any]]:
+    """Every flat metrics JSON directly in ``folder``: file stem -> metrics."""
+    out = {}
+    for path in sorted(folder.glob("*.json")):
+        try:
+            value = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{path}: not valid JSON ({exc})") from exc
+        if not isinstance(value, dict):
+            raise InputError(f"{path}: expected a flat JSON object")
+        out[path.stem] = value
+    return out
+
+
+def run(args: argparse.Namespace) -> None:
+    params = load_params(args.params)
+    metrics_dir = Path(args.metrics)
+    ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
+    out = Path(args.out or layout.report_dir())
+    paper = load_paper_results(args.paper)
+    if not metrics_dir.is_dir():
+        raise InputError(f"{metrics_dir}: metrics folder not found")
+    this_run = Run("this run", params, read_metrics(metrics_dir))
+    ablations = []
+    for folder in sorted(p for p in ablations_dir.glob("*") if p.is_dir()):
+        if not (folder / "params.yaml").exists():
+            raise InputError(f"{folder}: params.yaml missing (an ablation run saves its params)")
+        ablations.append(
+            Run(folder.name, load_params(folder / "params.yaml"), read_metrics(folder))
+        )
+    variants = list(params.generate.variants)
+    images, heatmaps = {}, {}
+    for v in variants:
+        png = Path(args.plots) / layout.heatmap_file(params.task, v).name
+        if png.exists():
+            images[png.name], heatmaps[v] = png.read_bytes(), png.name
+    blocks = build_report(params.task, variants, this_run, ablations, paper, heatmaps)
+    with atomic_directory(out) as tmp:
+        # the heat maps are copied beside report.md so that the folder stands on its own
+        (tmp / "report.md").write_text(render_markdown(blocks))
+        (tmp / "report.html").write_text(render_html(blocks, images, f"MimicGen on {params.task}"))
+        for name, data in images.items():
+            (tmp / name).write_bytes(data)
+    print(
+        f"report: {len(this_run.metrics)} metrics files, {len(ablations)} ablation runs, "
+        f"{len(images)} heat maps -> {out}/report.md, {out}/report.html"
+    )
