@@ -134,9 +134,12 @@ def _read_group(group: zarr.Group, prefix: str = "") -> dict[str, np.ndarray]:
     return out
 
 
-def read_store(path: str | os.PathLike, required: Sequence[str] = ()) -> EpisodeStore:
-    """Read a whole store; ``required`` lists data keys that must be present. Raises
-    InputError naming the path and the missing piece."""
+def read_store(
+    path: str | os.PathLike, required: Sequence[str] = (), task: str | None = None
+) -> EpisodeStore:
+    """Read a whole store; ``required`` lists data keys that must be present and ``task``,
+    when given, the task the store must have been recorded for. Raises InputError naming
+    the path and the missing piece."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: store not found")
@@ -155,4 +158,6 @@ def read_store(path: str | os.PathLike, required: Sequence[str] = ()) -> Episode
     missing = [k for k in required if k not in data]
     if missing:
         raise InputError(f"{path}: missing data keys {missing}")
+    if task is not None and attrs.get("task") != task:
+        raise InputError(f"{path}: attrs.task is {attrs.get('task')!r}, expected {task!r}")
     return EpisodeStore(path, data, ends, episodes, attrs)

@@ -62,15 +62,12 @@ def run(args: argparse.Namespace) -> None:
     store = read_store(
         parsed_path,
         required=["target_pose", "gripper"] + [f"object_poses/{o}" for o in spec.objects],
+        task=params.task,
     )
     if "subtask_term_index" not in store.episodes:
         raise InputError(
             f"{parsed_path}: meta/episodes/subtask_term_index missing "
             "(is this a parsed store? run the parse stage)"
-        )
-    if store.attrs.get("task") != params.task:
-        raise InputError(
-            f"{parsed_path}: attrs.task is {store.attrs.get('task')!r}, expected {params.task!r}"
         )
     pose_noise = pose_noise_level(params.pose_noise.level)
     check_store_noise(store.attrs, pose_noise, params.pose_noise.seed, parsed_path)

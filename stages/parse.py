@@ -31,11 +31,8 @@ def run(args: argparse.Namespace) -> None:
     store = read_store(
         src_path,
         required=["actions", "gripper", *pose_keys, *[f"subtask_signals/{s}" for s in signals]],
+        task=params.task,
     )
-    if store.attrs.get("task") != params.task:
-        raise InputError(
-            f"{src_path}: attrs.task is {store.attrs.get('task')!r}, expected {params.task!r}"
-        )
     for key in pose_keys + ["actions"]:
         bad = ~np.isfinite(store.data[key]).all(axis=-1)
         if bad.any():

@@ -33,15 +33,11 @@ def run(args: argparse.Namespace) -> None:
     parsed_path = Path(args.parsed or layout.parsed_store(params.task))
     out = Path(args.out or layout.pose_noise_store(params.task))
     keys = [f"object_poses/{o}" for o in spec.objects]
-    store = read_store(parsed_path, required=keys)
+    store = read_store(parsed_path, required=keys, task=params.task)
     if "subtask_term_index" not in store.episodes:
         raise InputError(
             f"{parsed_path}: meta/episodes/subtask_term_index missing "
             "(is this a parsed store? run the parse stage)"
-        )
-    if store.attrs.get("task") != params.task:
-        raise InputError(
-            f"{parsed_path}: attrs.task is {store.attrs.get('task')!r}, expected {params.task!r}"
         )
     if "pose_noise" in store.attrs:
         raise InputError(f"{parsed_path}: already carries pose noise; give the clean parsed store")

@@ -58,11 +58,7 @@ def run(args: argparse.Namespace) -> None:
     metrics_path = Path(args.metrics or layout.metrics_file("train", params.task, args.data))
     plot_path = Path(args.plot or layout.plot_file("train", params.task, args.data))
 
-    store = read_store(store_path, required=["actions"])
-    if store.attrs.get("task") != params.task:
-        raise InputError(
-            f"{store_path}: attrs.task is {store.attrs.get('task')!r}, expected {params.task!r}"
-        )
+    store = read_store(store_path, required=["actions"], task=params.task)
     data, dims = dataset_from_store(
         store, t.obs_keys, None if args.data == "source" else t.num_demos
     )
