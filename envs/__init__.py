@@ -6,10 +6,15 @@ library stay importable without them.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.taskspec import TaskSpec
 
-BACKENDS = ("maniskill",)
+BACKENDS = ("maniskill", "pybullet")
 
 
 def _module(backend: str):
@@ -17,6 +22,10 @@ def _module(backend: str):
         from envs import maniskill
 
         return maniskill
+    if backend == "pybullet":
+        from envs import pybullet
+
+        return pybullet
     raise InputError(f"backend {backend!r}: unknown (known: {', '.join(BACKENDS)})")
 
 
@@ -37,7 +46,36 @@ def check_variant(spec: TaskSpec, variant: str) -> None:
         )
 
 
+def check_robot(backend: str, robot: str) -> None:
+    """InputError for an arm ``backend`` does not have, or whose URDF files are missing."""
+    _module(backend).check_robot(robot)
+
+
 def make_env(backend: str, task: str, robot: str = "panda"):
     """A fresh env of ``task`` on ``backend`` that implements the env protocol."""
     task_spec(backend, task)
+    check_robot(backend, robot)
     return _module(backend).make_env(task, robot)
+
+
+@dataclass(frozen=True)
+class SourceEpisode:
+    """One source demo before recording: its reset seed (D0), the env state before the first
+    action (the back end's get_state()), and its actions (T, 7)."""
+
+    seed: int
+    initial_state: np.ndarray
+    actions: np.ndarray
+
+
+def source_episodes(
+    backend: str,
+    env,
+    num_demos: int,
+    seed: int,
+    from_file: str | None,
+    work_dir: Path,
+) -> tuple[list[SourceEpisode], int]:
+    """Up to ``num_demos`` source demos on ``env`` from the back end's demonstrator (or
+    ``from_file``), and how many the demonstrator dropped as failures."""
+    return _module(backend).source_episodes(env, num_demos, seed, from_file, work_dir)

@@ -37,6 +37,8 @@ class Env(Protocol):
     def set_state(self, state: np.ndarray) -> None: ...
     def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray: ...
     def action_to_target_pose(self, action: np.ndarray) -> np.ndarray: ...
+    def reachable(self, targets: np.ndarray) -> np.ndarray:
+        """(K,) bool: whether the arm has an IK solution for each TCP target (K, 4, 4)."""
 
 
 def transform_segment(
@@ -154,9 +156,11 @@ class SourceDemos:
 class Attempt:
     """One generation attempt: per-step arrays (T, ...) and per-episode fields."""
 
+    seed: int  # the attempt's reset seed
     steps: dict[str, np.ndarray]
     success: bool
     failed_subtask: int  # index of the first subtask not achieved; -1 on success
+    ik_failed: bool  # stopped before failed_subtask: the arm cannot reach one of its targets
     source_demo: np.ndarray  # (M,) source demo followed in each subtask
     initial_state: np.ndarray
     initial_object_poses: np.ndarray  # (n_objects, 4, 4) world
@@ -173,7 +177,8 @@ def run_attempt(
     """One generation attempt (paper Fig. 2): reset the scene, then for each subtask select a
     source demo, transform its segment to the reference object's current pose, prepend the
     interpolation from the current end-effector pose, and execute it as noisy delta-pose
-    actions. Success is the task's success after the last step."""
+    actions. Success is the task's success after the last step. An attempt whose next targets
+    the arm cannot reach (env.reachable) stops there, as an IK failure of that subtask."""
     rng = np.random.default_rng(seed)
     pose_rng = generation_rng(seed)
     env.reset(seed=seed, variant=variant)
@@ -196,6 +201,7 @@ def run_attempt(
     chosen = np.full(len(spec.subtasks), -1, dtype=np.int64)
     reached = np.zeros(len(spec.subtasks), dtype=bool)
     demo = -1
+    ik_failed = False
     for i, sub in enumerate(spec.subtasks):
         # the reference object's pose as a pose estimator reports it (paper T); the simulator's
         # true poses are untouched, and they are what gets recorded
@@ -213,6 +219,9 @@ def run_attempt(
         interp = interpolation(env.eef_pose(), seg[0], config.n_interp, config.n_fixed)
         targets = np.concatenate([interp, seg])
         grips = np.concatenate([np.full(len(interp), grip[0]), grip])
+        if not env.reachable(targets).all():
+            ik_failed = True
+            break
         noise = config.action_noise * rng.standard_normal((len(targets), 6))
         for k in range(len(targets)):
             eef = env.eef_pose()
@@ -226,11 +235,39 @@ def run_attempt(
             obj_now = env.object_poses()
         if sub.term_signal is not None and env.subtask_signals()[sub.term_signal]:
             reached[i] = True
-    success = bool(env.is_success())
+    success = not ik_failed and bool(env.is_success())
     reached[-1] = success
     failed = -1 if success else int(np.argmin(reached))
     steps = recorder.arrays()
-    return Attempt(steps, success, failed, chosen, initial_state, initial_object_poses)
+    return Attempt(
+        seed, steps, success, failed, ik_failed, chosen, initial_state, initial_object_poses
+    )
+
+
+def reachable_scenes(
+    env: Env, sources: SourceDemos, spec: TaskSpec, variant: str, seeds: list[int]
+) -> int:
+    """How many of the scenes reset from ``seeds`` the arm can work in: every target of the
+    first source demo's segments, moved to the scene's initial object poses, has an IK
+    solution. A cheap check of a robot's workspace before generating."""
+    bounds = segment_bounds(
+        sources.term_index[0], [0] * (len(spec.subtasks) - 1), int(sources.lengths[0])
+    )
+    start = int(sources.episode_starts[0])
+    ok = 0
+    for seed in seeds:
+        env.reset(seed=seed, variant=variant)
+        obj = env.object_poses()
+        targets = [
+            transform_segment(
+                sources.target_poses[start + b0 : start + b1],
+                sources.object_poses[sub.reference_object][start + b0],
+                obj[sub.reference_object],
+            )
+            for sub, (b0, b1) in zip(spec.subtasks, bounds, strict=True)
+        ]
+        ok += bool(env.reachable(np.concatenate(targets)).all())
+    return ok
 
 
 class StepRecorder:

@@ -112,25 +112,23 @@ def inverse_kinematics(
     max_step: float = 0.2,
     position_tol: float = POSITION_TOL,
     rotation_tol: float = ROTATION_TOL,
-    restarts: int = 0,
-    rng: np.random.Generator | None = None,
+    restarts: np.ndarray | None = None,
 ) -> IKResult:
     """Damped least squares: q += J^T (J J^T + damping^2 I)^-1 e, each joint step clipped to
     ``max_step`` [rad or m] and the result to the joint limits; a row stops changing once it
     is within tolerance. targets: (B, 4, 4) TCP poses in the root frame; q0: (n,) or (B, n)
-    starts. ``restarts`` more tries from uniform random joint positions (drawn from ``rng``)
-    for rows that did not converge."""
+    starts. ``restarts``: (R, n) joint positions to start again from, in turn, for the rows
+    not converged yet."""
     targets = np.asarray(targets, np.float64).reshape(-1, 4, 4)
     q = np.array(np.broadcast_to(q0, (len(targets), chain.dof)), np.float64)
     eye = np.eye(6) * damping**2
-    for attempt in range(restarts + 1):
-        if attempt:
-            if rng is None:
-                raise ValueError("restarts need an rng")
+    starts = [None] + list(np.zeros((0, chain.dof)) if restarts is None else restarts)
+    for start in starts:
+        if start is not None:
             redo = ~_converged(chain, q, targets, position_tol, rotation_tol)
             if not redo.any():
                 break
-            q[redo] = rng.uniform(chain.lower, chain.upper, (int(redo.sum()), chain.dof))
+            q[redo] = start
         for _ in range(iterations):
             jac, tcp = jacobian(chain, q)
             err = pose_error(tcp, targets)

@@ -25,10 +25,17 @@ def write_metrics(path: str | os.PathLike, metrics: Mapping[str, Any]) -> Path:
 
 
 def generation_metrics(
-    success: np.ndarray, failed_subtask: np.ndarray, seconds: np.ndarray, subtasks: list[str]
+    success: np.ndarray,
+    failed_subtask: np.ndarray,
+    seconds: np.ndarray,
+    subtasks: list[str],
+    ik_failed: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """attempts, successes, dgr (data generation rate, %), seconds per attempt (mean, median),
-    and failures per subtask (the first subtask an attempt did not achieve)."""
+    task failures per subtask (the first subtask an attempt did not achieve) and, apart from
+    them, IK failures (attempts stopped because the arm cannot reach a subtask's targets),
+    in total and per subtask."""
+    ik = np.zeros(len(success), bool) if ik_failed is None else np.asarray(ik_failed, bool)
     n = len(success)
     out: dict[str, Any] = {
         "attempts": int(n),
@@ -37,8 +44,10 @@ def generation_metrics(
         "seconds_per_attempt_mean": float(np.mean(seconds)) if n else 0.0,
         "seconds_per_attempt_median": float(np.median(seconds)) if n else 0.0,
     }
+    out["ik_failures"] = int(ik.sum())
     for i, name in enumerate(subtasks):
-        out[f"failures_{name}"] = int(np.sum(failed_subtask == i))
+        out[f"failures_{name}"] = int(np.sum((failed_subtask == i) & ~ik))
+        out[f"ik_failures_{name}"] = int(np.sum((failed_subtask == i) & ik))
     return out
 
 

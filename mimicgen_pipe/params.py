@@ -23,12 +23,13 @@ from mimicgen_pipe.pose_noise import level_error
 
 @dataclass(frozen=True)
 class SourceParams:
-    """num_demos: successful source demos wanted (D0). seed: first reset seed.
-    from_file: a ManiSkill trajectory .h5 (pd_ee_delta_pose) to use instead of the
-    motion-planning demonstrator; null to use the demonstrator."""
+    """num_demos: successful source demos wanted (D0). seed: first reset seed. robot: the arm
+    the source demos are recorded with. from_file: a ManiSkill trajectory .h5
+    (pd_ee_delta_pose) to use instead of the demonstrator; null to use the demonstrator."""
 
     num_demos: int = 10
     seed: int = 0
+    robot: str = "panda"
     from_file: str | None = None
 
 
@@ -50,6 +51,7 @@ class GenerateParams:
     per_subtask: bool = False
     seed: int = 0
     workers: int = 2
+    robot: str = "panda"
 
 
 @dataclass(frozen=True)
@@ -138,16 +140,31 @@ class EvaluateParams:
 
 
 @dataclass(frozen=True)
+class TransferParams:
+    """The robot-transfer matrix in dvc.yaml (paper E): every task x variant x robot is
+    generated from the same Panda source demos, ``attempts`` fixed attempts each, on
+    ``backend``; the other generation knobs come from ``generate``."""
+
+    backend: Literal["maniskill", "pybullet"] = "pybullet"
+    tasks: list[str] = field(default_factory=lambda: ["stack", "stack_three", "square_peg"])
+    variants: list[str] = field(default_factory=lambda: ["D0", "D1"])
+    robots: list[str] = field(default_factory=lambda: ["panda", "iiwa", "xarm6"])
+    attempts: int = 200
+
+
+@dataclass(frozen=True)
 class Params:
+    """task and backend: the main pipeline's task and simulator."""
+
     task: str = "stack_cube"
-    backend: Literal["maniskill"] = "maniskill"
-    robot: str = "panda"
+    backend: Literal["maniskill", "pybullet"] = "maniskill"
     source: SourceParams = field(default_factory=SourceParams)
     generate: GenerateParams = field(default_factory=GenerateParams)
     pose_noise: PoseNoiseParams = field(default_factory=PoseNoiseParams)
     coverage: CoverageParams = field(default_factory=CoverageParams)
     train: TrainParams = field(default_factory=TrainParams)
     evaluate: EvaluateParams = field(default_factory=EvaluateParams)
+    transfer: TransferParams = field(default_factory=TransferParams)
 
 
 _RANGES: dict[str, tuple[float, float]] = {
@@ -174,6 +191,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "train.*.threads": (0, 1024),
     "evaluate.episodes": (1, 100_000),
     "evaluate.workers": (1, 256),
+    "transfer.attempts": (1, 10_000_000),
 }
 
 # Keys whose values need more than a type and a range: key -> why the value is wrong (None
@@ -257,6 +275,24 @@ def load_params(path: str | Path = "params.yaml") -> Params:
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML ({exc})") from exc
     return _build(Params, raw, "", path)
+
+
+def with_overrides(
+    params: Params, backend: str | None = None, task: str | None = None, robot: str | None = None
+) -> Params:
+    """``params`` with a stage's command-line choices of back end, task and generation arm
+    (dvc.yaml's robot-transfer matrix runs the same stages on other tasks and arms)."""
+    if backend is not None:
+        if backend not in typing.get_args(typing.get_type_hints(Params)["backend"]):
+            raise InputError(f"--backend {backend!r}: expected maniskill or pybullet")
+        params = dataclasses.replace(params, backend=backend)
+    if task is not None:
+        params = dataclasses.replace(params, task=task)
+    if robot is not None:
+        params = dataclasses.replace(
+            params, generate=dataclasses.replace(params.generate, robot=robot)
+        )
+    return params
 
 
 def as_dict(params: Any) -> dict[str, Any]:

@@ -19,12 +19,12 @@ from mimicgen_pipe.coverage import (
 )
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.params import load_params
 from mimicgen_pipe.store import read_store
+from stages import add_selection_arguments, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    add_selection_arguments(p)
     p.add_argument("--variant", required=True, help="reset variant, e.g. D0 or D1")
     p.add_argument(
         "--generated",
@@ -43,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    params = load_params(args.params)
+    params = stage_params(args)
     bins = params.coverage.bins
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)

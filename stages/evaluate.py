@@ -17,12 +17,12 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.evaluation import EvalJob, evaluation_seed, run_evaluation
 from mimicgen_pipe.metrics import evaluation_metrics, write_metrics
 from mimicgen_pipe.observations import observation_dims
-from mimicgen_pipe.params import load_params
 from mimicgen_pipe.training import load_checkpoint, load_rollout_policy
+from stages import add_selection_arguments, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    add_selection_arguments(p)
     p.add_argument(
         "--data", required=True, help='the policy\'s training data: "source" or a variant'
     )
@@ -47,7 +47,7 @@ def find_checkpoints(directory: Path) -> dict[int, list[Path]]:
 
 
 def run(args: argparse.Namespace) -> None:
-    params = load_params(args.params)
+    params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
     name = f"{args.data}_on_{args.variant}"
@@ -55,6 +55,9 @@ def run(args: argparse.Namespace) -> None:
     metrics_path = Path(args.metrics or layout.metrics_file("evaluate", params.task, name))
     plot_path = Path(args.plot or layout.plot_file("evaluate", params.task, name))
 
+    # a policy acts with the arm its training data was recorded with
+    robot = params.source.robot if args.data == "source" else params.generate.robot
+    envs.check_robot(params.backend, robot)
     runs = find_checkpoints(policies)
     expected = observation_dims(spec.objects)
     epochs: dict[Path, int] = {}
@@ -77,7 +80,7 @@ def run(args: argparse.Namespace) -> None:
     e = params.evaluate
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
     job = EvalJob(
-        make_env=functools.partial(envs.make_env, params.backend, params.task, params.robot),
+        make_env=functools.partial(envs.make_env, params.backend, params.task, robot),
         load_policy=load_rollout_policy,
         variant=args.variant,
         horizon=spec.horizon,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import time
 from pathlib import Path
@@ -13,16 +14,17 @@ from tqdm import tqdm
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.generation import GenerationConfig, SourceDemos
+from mimicgen_pipe.generation import GenerationConfig, SourceDemos, reachable_scenes
 from mimicgen_pipe.metrics import generation_metrics, write_metrics
-from mimicgen_pipe.params import as_dict, load_params
+from mimicgen_pipe.params import as_dict
 from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.runner import AttemptJob, attempt_seed, run_attempts
 from mimicgen_pipe.store import EpisodeStore, read_store, write_store
+from stages import add_selection_arguments, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    add_selection_arguments(p, robot=True)
     p.add_argument("--variant", required=True, help="reset variant, e.g. D0 or D1")
     p.add_argument(
         "--parsed",
@@ -37,6 +39,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--metrics", help="metrics JSON (default: metrics/generate_<task>_<variant>.json)"
     )
+    p.add_argument(
+        "--attempts",
+        type=int,
+        help="run exactly this many attempts (fixed_attempts mode), whatever generate.mode says",
+    )
+
+
+WORKSPACE_SCENES = 8  # scenes sampled to check that the arm can reach the workspace
+IK_ABORT_AFTER = 50  # stop when this many attempts in a row all failed at IK
 
 
 def source_demos(store: EpisodeStore, objects: tuple[str, ...]) -> SourceDemos:
@@ -51,10 +62,16 @@ def source_demos(store: EpisodeStore, objects: tuple[str, ...]) -> SourceDemos:
 
 
 def run(args: argparse.Namespace) -> None:
-    params = load_params(args.params)
+    params = stage_params(args)
     g = params.generate
+    if args.attempts is not None:
+        if args.attempts < 1:
+            raise InputError(f"--attempts {args.attempts}: expected a positive number")
+        g = dataclasses.replace(g, mode="fixed_attempts", max_attempts=args.attempts)
+        params = dataclasses.replace(params, generate=g)
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
+    envs.check_robot(params.backend, g.robot)
     parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
     out = Path(args.out or layout.generated_store(params.task, args.variant))
     failed_out = out.with_name(out.name.replace(".zarr", "_failed.zarr"))
@@ -75,13 +92,22 @@ def run(args: argparse.Namespace) -> None:
         g.action_noise, g.n_interp, g.n_fixed, g.selection, g.nn_k, g.per_subtask, pose_noise
     )
     job = AttemptJob(
-        make_env=functools.partial(envs.make_env, params.backend, params.task, params.robot),
+        make_env=functools.partial(envs.make_env, params.backend, params.task, g.robot),
         sources=source_demos(store, spec.objects),
         spec=spec,
         config=config,
         variant=args.variant,
     )
     seeds = [attempt_seed(g.seed, args.variant, i) for i in range(g.max_attempts)]
+    env = job.make_env()
+    scenes = reachable_scenes(env, job.sources, spec, args.variant, seeds[:WORKSPACE_SCENES])
+    env.close()
+    if scenes == 0:
+        raise InputError(
+            f"robot {g.robot!r} cannot reach the {args.variant} workspace of {params.task}: in "
+            f"none of {WORKSPACE_SCENES} sampled scenes does it have IK solutions for the "
+            "source demo's segments. Nothing was generated."
+        )
     guarantee = g.mode == "guarantee"
     kept, failed, rows = [], [], []
     t0 = time.perf_counter()
@@ -95,7 +121,14 @@ def run(args: argparse.Namespace) -> None:
     try:
         if not (guarantee and g.num_demos == 0):
             for seed, attempt, seconds in results:
-                rows.append((seed, attempt.success, attempt.failed_subtask, seconds))
+                rows.append(
+                    (seed, attempt.success, attempt.failed_subtask, seconds, attempt.ik_failed)
+                )
+                if len(rows) == IK_ABORT_AFTER and all(r[4] for r in rows):
+                    raise RuntimeError(
+                        f"generate: all of the first {IK_ABORT_AFTER} attempts failed at IK "
+                        f"(robot {g.robot!r} cannot reach the targets); nothing was written"
+                    )
                 (kept if attempt.success else failed).append(attempt)
                 bar.update(1 if (attempt.success or not guarantee) else 0)
                 bar.set_postfix(attempts=len(rows), dgr=f"{100 * len(kept) / len(rows):.1f}%")
@@ -115,25 +148,23 @@ def run(args: argparse.Namespace) -> None:
         "task": params.task,
         "variant": args.variant,
         "backend": params.backend,
-        "robot": params.robot,
+        "robot": g.robot,
+        "source_robot": store.attrs.get("robot"),
         "control_mode": store.attrs.get("control_mode"),
         "control_freq": store.attrs.get("control_freq"),
         "objects": list(spec.objects),
         "subtasks": [s.name for s in spec.subtasks],
         "params": as_dict(params),
     }
-    seed_of = {
-        id(a): r[0]
-        for a, r in zip(
-            kept + failed, [r for r in rows if r[1]] + [r for r in rows if not r[1]], strict=False
-        )
-    }
+    # an attempt stopped at IK before its first step has no steps to keep; it is counted in
+    # the metrics only
+    failed = [a for a in failed if len(a.steps)]
     for attempts, path in ((kept, out), (failed, failed_out)):
         write_store(
             path,
             [a.steps for a in attempts],
             {
-                "seed": np.asarray([seed_of[id(a)] for a in attempts], np.int64),
+                "seed": np.asarray([a.seed for a in attempts], np.int64),
                 "success": np.asarray([a.success for a in attempts], bool),
                 "source_demo": np.asarray([a.source_demo for a in attempts], np.int64).reshape(
                     len(attempts), len(spec.subtasks)
@@ -143,6 +174,7 @@ def run(args: argparse.Namespace) -> None:
                 ).reshape(len(attempts), len(spec.objects), 4, 4),
                 "initial_state": np.asarray([a.initial_state for a in attempts], np.float32),
                 "failure_reason": np.asarray([a.failed_subtask for a in attempts], np.int64),
+                "ik_failure": np.asarray([a.ik_failed for a in attempts], bool),
             },
             attrs,
         )
@@ -152,6 +184,7 @@ def run(args: argparse.Namespace) -> None:
         np.array([r[2] for r in rows]),
         np.array([r[3] for r in rows]),
         [s.name for s in spec.subtasks],
+        np.array([r[4] for r in rows], bool),
     )
     metrics.update(
         wall_seconds=wall, steps=int(sum(len(a.steps["actions"]) for a in kept + failed))
@@ -159,6 +192,6 @@ def run(args: argparse.Namespace) -> None:
     write_metrics(metrics_path, metrics)
     print(
         f"generate: {metrics['successes']}/{metrics['attempts']} attempts succeeded "
-        f"(DGR {metrics['dgr']:.1f}%, median {metrics['seconds_per_attempt_median']:.3f} s/attempt)"
+        f"(DGR {metrics['dgr']:.1f}%, {metrics['ik_failures']} IK failures, median {metrics['seconds_per_attempt_median']:.3f} s/attempt)"
         f" -> {out}"
     )

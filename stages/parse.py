@@ -10,19 +10,19 @@ import numpy as np
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import load_params
 from mimicgen_pipe.segments import split_into_segments, validate_segments
 from mimicgen_pipe.store import read_store, write_store
+from stages import add_selection_arguments, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    add_selection_arguments(p)
     p.add_argument("--source", help="source store (default: data/source/<task>.zarr)")
     p.add_argument("--out", help="parsed store (default: data/parsed/<task>.zarr)")
 
 
 def run(args: argparse.Namespace) -> None:
-    params = load_params(args.params)
+    params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
     src_path = Path(args.source or layout.source_store(params.task))
     out = Path(args.out or layout.parsed_store(params.task))

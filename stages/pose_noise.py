@@ -10,13 +10,13 @@ import numpy as np
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import load_params
 from mimicgen_pipe.pose_noise import perturb_pose, pose_noise_level, store_attrs
 from mimicgen_pipe.store import read_store, write_store
+from stages import add_selection_arguments, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    add_selection_arguments(p)
     p.add_argument("--parsed", help="parsed source store (default: data/parsed/<task>.zarr)")
     p.add_argument(
         "--out",
@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    params = load_params(args.params)
+    params = stage_params(args)
     pn = params.pose_noise
     noise = pose_noise_level(pn.level)  # validated with the params
     spec = envs.task_spec(params.backend, params.task)

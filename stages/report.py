@@ -18,10 +18,11 @@ from mimicgen_pipe.report import (
     render_markdown,
 )
 from mimicgen_pipe.store import atomic_directory
+from stages import add_selection_arguments, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    add_selection_arguments(p)
     p.add_argument("--metrics", default="metrics", help="metrics folder (default: metrics)")
     p.add_argument(
         "--ablations",
@@ -52,7 +53,7 @@ def read_metrics(folder: Path) -> dict[str, dict[str, Any]]:
 
 
 def run(args: argparse.Namespace) -> None:
-    params = load_params(args.params)
+    params = stage_params(args)
     metrics_dir = Path(args.metrics)
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
     out = Path(args.out or layout.report_dir())

@@ -15,7 +15,7 @@ import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.params import as_dict, load_params
+from mimicgen_pipe.params import as_dict
 from mimicgen_pipe.policy import PolicyConfig
 from mimicgen_pipe.store import atomic_directory, read_store
 from mimicgen_pipe.training import (
@@ -27,12 +27,13 @@ from mimicgen_pipe.training import (
     subset,
     train_policy,
 )
+from stages import add_selection_arguments, stage_params
 
 SPLIT_SEED = 0  # the train/validation split is the same for every training seed
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    add_selection_arguments(p)
     p.add_argument(
         "--data",
         required=True,
@@ -46,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    params = load_params(args.params)
+    params = stage_params(args)
     t, prof = params.train, params.train.active
     spec = envs.task_spec(params.backend, params.task)
     if args.data != "source":
@@ -90,7 +91,7 @@ def run(args: argparse.Namespace) -> None:
     meta = {
         "task": params.task,
         "backend": params.backend,
-        "robot": params.robot,
+        "robot": store.attrs.get("robot"),
         "data": args.data,
         "store": str(store_path),
         "control_mode": store.attrs.get("control_mode"),

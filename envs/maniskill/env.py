@@ -19,6 +19,7 @@ from envs.maniskill.tasks import (  # noqa: E402
     D1_X,
     D1_Y,
     ROBOT_BASE_XY,
+    ROBOTS,
     TASKS,
 )
 from mimicgen_pipe import poses  # noqa: E402
@@ -28,8 +29,6 @@ from mimicgen_pipe.controller import (  # noqa: E402
     target_poses_to_actions,
 )
 from mimicgen_pipe.errors import InputError  # noqa: E402
-
-ROBOTS = ("panda",)
 
 
 def _yaw_quats(n: int) -> torch.Tensor:
@@ -231,6 +230,11 @@ class ManiSkillEnv:
 
     def action_to_target_pose(self, action: np.ndarray) -> np.ndarray:
         return actions_to_target_poses(self.eef_pose(), action, self.controller)
+
+    def reachable(self, targets: np.ndarray) -> np.ndarray:
+        """All True: ManiSkill's controller solves its own IK each step, and a target it
+        cannot reach leaves the arm where it is, which shows up as a task failure."""
+        return np.ones(len(targets), bool)
 
     def close(self) -> None:
         self._env.close()

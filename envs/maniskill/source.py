@@ -214,3 +214,19 @@ def initial_state(env, episode: TrajectoryFileEpisode) -> np.ndarray:
     state["articulations"] = arts
     env.set_state_dict({k: {n: torch.as_tensor(v) for n, v in d.items()} for k, d in state.items()})
     return env.get_state()
+
+
+def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_dir: Path):
+    """The motion-planning demonstrator's demos (or ``from_file``'s) as SourceEpisodes, and
+    the number of failed plans."""
+    from envs import SourceEpisode
+
+    if from_file is not None:
+        traj_file, planner_failures = Path(from_file), 0
+    else:
+        traj_file, planner_failures = run_motion_planner(
+            env.spec.name, env.robot, num_demos, seed, work_dir, 10 * num_demos
+        )
+    episodes = read_trajectory_file(traj_file, env.spec.name)[:num_demos]
+    out = [SourceEpisode(ep.seed, initial_state(env, ep), ep.actions) for ep in episodes]
+    return out, planner_failures

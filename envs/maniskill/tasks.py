@@ -26,6 +26,7 @@ D1_Y = (-0.35, 0.35)
 D1_MIN_DIST = 0.06
 D1_MAX_REACH = 0.76
 ROBOT_BASE_XY = (-0.615, 0.0)
+ROBOTS = ("panda",)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,52 @@
+"""PyBullet back end (headless DIRECT, 20 Hz end-effector delta-pose control); arms from
+pybullet_data with the Franka hand (envs/pybullet/robots.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from envs.pybullet.robots import ROBOTS, robot_spec, robot_urdf_text
+from envs.pybullet.tasks import TASKS
+from mimicgen_pipe.errors import InputError
+
+
+def check_robot(robot: str) -> None:
+    """InputError for an unknown arm or a URDF (arm or hand) that is not on disk."""
+    robot_urdf_text(robot_spec(robot))
+
+
+def make_env(task: str, robot: str = "panda"):
+    from envs.pybullet.env import PyBulletEnv
+
+    return PyBulletEnv(task, robot)
+
+
+def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_dir: Path):
+    """The scripted demonstrator's first ``num_demos`` successful demos from reset seeds
+    seed, seed + 1, ... (at most 10 x num_demos tries), and the number of failures."""
+    from tqdm import tqdm
+
+    from envs import SourceEpisode
+    from envs.pybullet.demos import demonstrate
+
+    if from_file is not None:
+        raise InputError(
+            f"source.from_file={from_file!r}: trajectory files are read on the maniskill "
+            "back end; pybullet records its source demos with its scripted demonstrator"
+        )
+    kept, failed = [], 0
+    bar = tqdm(total=num_demos, desc=f"source: scripted demos of {env.spec.name}", unit="demo")
+    for s in range(seed, seed + 10 * num_demos):
+        demo = demonstrate(env, s)
+        if demo.success:
+            kept.append(SourceEpisode(s, demo.initial_state, demo.actions))
+            bar.update(1)
+        else:
+            failed += 1
+        if len(kept) == num_demos:
+            break
+    bar.close()
+    return kept, failed
+
+
+__all__ = ["ROBOTS", "TASKS", "check_robot", "make_env", "source_episodes"]

@@ -78,6 +78,9 @@ class PyBulletEnv:
         if not home.converged[0]:
             raise RuntimeError(f"robot {robot}: no IK solution for the home pose")
         self.home_q = home.q[0]
+        lo, hi = self.chain.lower[-1], self.chain.upper[-1]
+        self._ik_restarts = np.repeat(self.home_q[None], 8, axis=0)
+        self._ik_restarts[:, -1] = np.linspace(lo + 0.1, hi - 0.1, 8)
         self._sim = BulletClient(connection_mode=p.DIRECT)
         self._sim.setAdditionalSearchPath(pybullet_data.getDataPath())
         self._build()
@@ -288,11 +291,17 @@ class PyBulletEnv:
         return actions_to_target_poses(self.eef_pose(), action, self.controller)
 
     def reachable(self, targets: np.ndarray) -> np.ndarray:
-        """(K,) whether each TCP target pose (K, 4, 4, world) has an IK solution within
-        1 mm / 0.5 deg, solved as one batch from the current joint positions."""
+        """(K,) whether each TCP target pose (K, 4, 4, world) is in the arm's workspace: an
+        IK solution within 1 mm / 0.5 deg, solved as one batch from the current joint
+        positions, then for the targets not solved yet from the home configuration with the
+        wrist (last joint) turned to 8 angles across its range: top-down targets differ
+        mostly in yaw, and a start on the wrong side of a wrist limit gets stuck there. Whether the arm gets there from where it is is the controller's
+        business: that shows up as a task failure."""
         q = np.array([s[0] for s in self._sim.getJointStates(self._robot, self._arm)])
         root = self.controller.root_pose_inv @ np.asarray(targets)
-        return inverse_kinematics(self.chain, root, q, iterations=100).converged
+        return inverse_kinematics(
+            self.chain, root, q, iterations=200, restarts=self._ik_restarts
+        ).converged
 
     def close(self) -> None:
         self._sim.disconnect()

@@ -103,7 +103,7 @@ STACK = PyBulletTask(
         name="stack",
         objects=_CUBES2,
         subtasks=(
-            SubtaskSpec("grasp_cubeA", "cubeA", "grasp_cubeA", (10, 15)),
+            SubtaskSpec("grasp_cubeA", "cubeA", "grasp_cubeA", (15, 20)),
             SubtaskSpec("place_on_cubeB", "cubeB", None),
         ),
         reset_bounds={
@@ -121,7 +121,7 @@ STACK_THREE = PyBulletTask(
         name="stack_three",
         objects=_CUBES3,
         subtasks=(
-            SubtaskSpec("grasp_cubeA", "cubeA", "grasp_cubeA", (10, 15)),
+            SubtaskSpec("grasp_cubeA", "cubeA", "grasp_cubeA", (15, 20)),
             SubtaskSpec("place_on_cubeB", "cubeB", "cubeA_on_cubeB", (10, 15)),
             SubtaskSpec("grasp_cubeC", "cubeC", "grasp_cubeC", (10, 15)),
             SubtaskSpec("place_on_cubeA", "cubeA", None),
