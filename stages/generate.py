@@ -192,6 +192,7 @@ def run(args: argparse.Namespace) -> None:
     write_metrics(metrics_path, metrics)
     print(
         f"generate: {metrics['successes']}/{metrics['attempts']} attempts succeeded "
-        f"(DGR {metrics['dgr']:.1f}%, {metrics['ik_failures']} IK failures, median {metrics['seconds_per_attempt_median']:.3f} s/attempt)"
+        f"(DGR {metrics['dgr']:.1f}%, {metrics['ik_failures']} IK failures, "
+        f"median {metrics['seconds_per_attempt_median']:.3f} s/attempt)"
         f" -> {out}"
     )

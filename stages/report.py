@@ -16,6 +16,7 @@ from mimicgen_pipe.report import (
     load_paper_results,
     render_html,
     render_markdown,
+    transfer_blocks,
 )
 from mimicgen_pipe.store import atomic_directory
 from stages import add_selection_arguments, stage_params
@@ -75,6 +76,8 @@ def run(args: argparse.Namespace) -> None:
         if png.exists():
             images[png.name], heatmaps[v] = png.read_bytes(), png.name
     blocks = build_report(params.task, variants, this_run, ablations, paper, heatmaps)
+    t = params.transfer
+    blocks += transfer_blocks(t.tasks, t.variants, t.robots, this_run.metrics)
     with atomic_directory(out) as tmp:
         # the heat maps are copied beside report.md so that the folder stands on its own
         (tmp / "report.md").write_text(render_markdown(blocks))

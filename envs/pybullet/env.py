@@ -295,8 +295,9 @@ class PyBulletEnv:
         IK solution within 1 mm / 0.5 deg, solved as one batch from the current joint
         positions, then for the targets not solved yet from the home configuration with the
         wrist (last joint) turned to 8 angles across its range: top-down targets differ
-        mostly in yaw, and a start on the wrong side of a wrist limit gets stuck there. Whether the arm gets there from where it is is the controller's
-        business: that shows up as a task failure."""
+        mostly in yaw, and a start on the wrong side of a wrist limit gets stuck there.
+        Whether the arm gets there from where it is is the controller's business: that shows
+        up as a task failure."""
         q = np.array([s[0] for s in self._sim.getJointStates(self._robot, self._arm)])
         root = self.controller.root_pose_inv @ np.asarray(targets)
         return inverse_kinematics(

@@ -123,7 +123,7 @@ STACK_THREE = PyBulletTask(
         subtasks=(
             SubtaskSpec("grasp_cubeA", "cubeA", "grasp_cubeA", (15, 20)),
             SubtaskSpec("place_on_cubeB", "cubeB", "cubeA_on_cubeB", (10, 15)),
-            SubtaskSpec("grasp_cubeC", "cubeC", "grasp_cubeC", (10, 15)),
+            SubtaskSpec("grasp_cubeC", "cubeC", "grasp_cubeC", (15, 20)),
             SubtaskSpec("place_on_cubeA", "cubeA", None),
         ),
         reset_bounds={
@@ -141,7 +141,7 @@ SQUARE_PEG = PyBulletTask(
         name="square_peg",
         objects=("peg", "hole"),
         subtasks=(
-            SubtaskSpec("grasp_peg", "peg", "grasp_peg", (10, 15)),
+            SubtaskSpec("grasp_peg", "peg", "grasp_peg", (15, 20)),
             SubtaskSpec("insert_peg", "hole", None),
         ),
         reset_bounds={
