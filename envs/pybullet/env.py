@@ -155,10 +155,12 @@ class PyBulletEnv:
         for name in self.spec.objects:
             pq = poses.pose_to_pq(objects[name])
             state += [pq[:3], pq[[4, 5, 6, 3]], np.zeros(6)]
-        self.set_state(np.concatenate(state))
+        # stores keep states in float32: start from float32 values so that a stored initial
+        # state is this one exactly
+        self.set_state(np.concatenate(state).astype(np.float32))
 
     def rebuild(self) -> None:
-        self._build()
+        self._build()  # set_state builds a new scene anyway
 
     def step(self, action: np.ndarray) -> None:
         a = clip_actions(action)
@@ -253,6 +255,11 @@ class PyBulletEnv:
         return np.concatenate(parts)
 
     def set_state(self, state: np.ndarray) -> None:
+        """Restore ``state`` (get_state()'s layout) in a freshly built scene. Bullet keeps
+        contact caches between steps that the state vector does not hold; starting every
+        episode from a new scene (~30-60 ms) makes an episode's trajectory depend on its
+        initial state and actions only, so replays reproduce generated episodes exactly."""
+        self._build()
         sim = self._sim
         state = np.asarray(state, np.float64)
         joints = self._arm + self._fingers
