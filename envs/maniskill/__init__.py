@@ -1,7 +1,11 @@
 """ManiSkill3 / SAPIEN back end (CPU PhysX, pd_ee_delta_pose)."""
 
-from envs.maniskill.tasks import ROBOTS, TASKS
+from envs.maniskill.tasks import ROBOTS as PANDA_ROBOTS
+from envs.maniskill.tasks import TASKS
 from mimicgen_pipe.errors import InputError
+
+# the Panda (envs/maniskill/env.py) and the xArm6 with the Franka hand (envs/maniskill/xarm6.py)
+ROBOTS = (*PANDA_ROBOTS, "xarm6")
 
 
 def check_robot(robot: str) -> None:
@@ -10,6 +14,11 @@ def check_robot(robot: str) -> None:
 
 
 def make_env(task: str, robot: str = "panda"):
+    check_robot(robot)
+    if robot == "xarm6":
+        from envs.maniskill.xarm6 import XArm6ManiSkillEnv
+
+        return XArm6ManiSkillEnv(task, robot)
     from envs.maniskill.env import ManiSkillEnv
 
     return ManiSkillEnv(task, robot)

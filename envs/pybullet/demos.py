@@ -150,12 +150,12 @@ def demonstrate(env, seed: int, variant: str = "D0") -> Demo:
             _pick(op, env.object_poses()["cubeC"], 0.0)
             _place(op, "cubeC", _on(env.object_poses()["cubeA"], 0.004), 0.16, 0.03, 0.006)
     elif task == "square_peg":
-        # held 1 cm above its centre, the peg does not pivot between the fingers
-        _pick(op, env.object_poses()["peg"], 0.01)
+        # held 5 mm above its centre of mass, the peg does not pivot between the fingers
+        _pick(op, env.object_poses()["peg"], 0.005)
         goal = env.object_poses()["hole"].copy()
-        # released with its bottom 15 mm above the table, 25 mm down the hole, the fingertips
-        # above the fixture; it drops to the bottom
-        goal[2, 3] += PEG_HALF_HEIGHT + 0.015
+        # released with its bottom 20 mm down the hole, the fingertips above the fixture; it
+        # drops to the bottom
+        goal[2, 3] += PEG_HALF_HEIGHT + FIXTURE_HEIGHT - 0.02
         _place(op, "peg", goal, 0.17, FIXTURE_HEIGHT + 0.03, 0.004)
     else:
         raise ValueError(f"no demonstrator for task {task!r}")

@@ -29,9 +29,14 @@ from mimicgen_pipe.kinematics import inverse_kinematics
 SIM_HZ = 240
 CONTROL_HZ = 20
 IK_ITERATIONS = 10  # DLS iterations per control step, from the current joint positions
-ARM_KP = 0.3  # PyBullet position-motor gain
-FINGER_FORCE = 40.0  # [N] per finger
+ARM_KP = 0.1  # PyBullet position-motor gain
+FINGER_FORCE = 70.0  # [N] per finger, the Franka hand's continuous grasp force
 FRICTION = 1.0
+# torsional friction of the finger pads: without it a tall object pivots between the
+# fingers (about the closing axis) when the arm accelerates
+FINGER_SPIN = 0.1
+POS_SCALE = 0.05  # [m] per unit translation action (robosuite's OSC scale; see PyBulletEnv)
+ROT_SCALE = 0.1  # [rad] per unit rotation action
 
 
 def _pose(pos, quat_xyzw) -> np.ndarray:
@@ -70,7 +75,7 @@ class PyBulletEnv:
         root = np.eye(4)
         root[:2, 3] = base_xy
         self.controller = DeltaPoseController(
-            pos_scale=0.1, rot_scale=0.1, rot_repr="axis_angle", root_pose=root
+            pos_scale=POS_SCALE, rot_scale=ROT_SCALE, rot_repr="axis_angle", root_pose=root
         )
         home = inverse_kinematics(
             self.chain, HOME_TCP[None], np.asarray(spec.seed_q), iterations=300, max_step=0.05
@@ -109,7 +114,9 @@ class PyBulletEnv:
             max(50.0, sim.getJointInfo(self._robot, j)[10]) for j in self._arm
         ]  # effort limits, at least 50 N m: gravity alone needs ~40 on the iiwa's shoulder
         for j in self._fingers:
-            sim.changeDynamics(self._robot, j, lateralFriction=FRICTION, spinningFriction=0.001)
+            sim.changeDynamics(
+                self._robot, j, lateralFriction=FRICTION, spinningFriction=FINGER_SPIN
+            )
         # the Franka hand's fingers move together (a mimic joint); two free fingers squeezing
         # with equal force let a held object slide along the closing axis
         gear = sim.createConstraint(
@@ -252,7 +259,9 @@ class PyBulletEnv:
             pos, quat = sim.getBasePositionAndOrientation(body)
             lin, ang = sim.getBaseVelocity(body)
             parts += [pos, quat, lin, ang]
-        return np.concatenate(parts)
+        # float32 like the stores (and ManiSkill): restoring a returned state restores the
+        # scene every reset() built, bit for bit
+        return np.concatenate(parts).astype(np.float32)
 
     def set_state(self, state: np.ndarray) -> None:
         """Restore ``state`` (get_state()'s layout) in a freshly built scene. Bullet keeps

@@ -31,9 +31,9 @@ from mimicgen_pipe.taskspec import ObjectBounds, SubtaskSpec, TaskSpec
 ROBOT_BASE_XY = (-0.5, 0.0)
 FULL_YAW = (0.0, 2 * math.pi)
 CUBE_HALF = 0.02
-PEG_HALF = 0.0125
-PEG_HALF_HEIGHT = 0.04
-HOLE_HALF = 0.014
+PEG_HALF = 0.015
+PEG_HALF_HEIGHT = 0.03
+HOLE_HALF = 0.017
 FIXTURE_HALF = 0.05
 FIXTURE_HEIGHT = 0.04
 
@@ -122,7 +122,7 @@ STACK_THREE = PyBulletTask(
         objects=_CUBES3,
         subtasks=(
             SubtaskSpec("grasp_cubeA", "cubeA", "grasp_cubeA", (15, 20)),
-            SubtaskSpec("place_on_cubeB", "cubeB", "cubeA_on_cubeB", (10, 15)),
+            SubtaskSpec("place_on_cubeB", "cubeB", "cubeA_on_cubeB", (22, 26)),
             SubtaskSpec("grasp_cubeC", "cubeC", "grasp_cubeC", (15, 20)),
             SubtaskSpec("place_on_cubeA", "cubeA", None),
         ),
