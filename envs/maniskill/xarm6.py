@@ -15,13 +15,9 @@ reset variants) with the robot base at x = -0.4: from the Panda's -0.615 the xAr
 
 from __future__ import annotations
 
-import copy
 import dataclasses
-import hashlib
 import os
-import tempfile
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
 
@@ -37,7 +33,13 @@ from mani_skill.utils.registration import register_env  # noqa: E402
 
 from envs.maniskill.env import ManiSkillEnv, MimicGenStackCubeEnv, _pose_of  # noqa: E402
 from envs.maniskill.tasks import TASKS  # noqa: E402
-from envs.pybullet.robots import PANDA_URDF, _absolute_meshes, _resolve  # noqa: E402
+from envs.urdf import (  # noqa: E402
+    FINGER_JOINTS,
+    add_fixed_joint,
+    franka_hand,
+    load_urdf,
+    urdf_file,
+)
 from mimicgen_pipe.controller import DeltaPoseController  # noqa: E402
 from mimicgen_pipe.errors import InputError  # noqa: E402
 
@@ -52,8 +54,6 @@ BASE_XYZ = (-0.4, 0.0, 0.0)  # [m] world position of the robot base
 # arm joints [rad] then fingers [m]: the TCP pointing down at world (0, 0, 0.18), fingers open
 REST_QPOS = np.array([0.0, -0.11784, -0.7075, 0.0, 0.82534, 0.0, 0.04, 0.04])
 FINGER_OPEN = 0.04
-HAND_LINKS = ("panda_hand", "panda_leftfinger", "panda_rightfinger")
-FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
 # pybullet_data's hand/finger inertias (0.1 kg m^2) are unphysical for PhysX; values like
 # ManiSkill's panda_v2: (com xyz, mass [kg], principal inertia diag [kg m^2])
 HAND_INERTIA = {
@@ -75,58 +75,26 @@ def _set_inertial(link: ET.Element, xyz: str, mass: float, diag: tuple[float, ..
 
 def urdf_text() -> str:
     """The xArm6 + Franka hand URDF for SAPIEN, mesh paths absolute."""
-    arm_path = _resolve(ARM_URDF)
-    arm = ET.parse(arm_path).getroot()
+    arm = load_urdf(ARM_URDF)
     for el in list(arm):
-        if el.tag in ("transmission", "gazebo"):
-            arm.remove(el)  # ROS control blocks
-        elif (el.tag, el.get("name")) in (("link", "world"), ("joint", "world_joint")):
+        if (el.tag, el.get("name")) in (("link", "world"), ("joint", "world_joint")):
             arm.remove(el)  # the dummy world link: ManiSkill places the root itself
-    _absolute_meshes(arm, arm_path.parent)
-    if not any(link.get("name") == FLANGE for link in arm.iter("link")):
-        raise InputError(f"robot URDF {arm_path}: no link {FLANGE!r} to mount the hand on")
-    panda_path = _resolve(PANDA_URDF)
-    panda = ET.parse(panda_path).getroot()
-    _absolute_meshes(panda, panda_path.parent)
-    for el in panda:
-        name = el.get("name")
-        if el.tag == "link" and name in HAND_LINKS:
-            link = copy.deepcopy(el)
-            for contact in link.findall("contact"):
-                link.remove(contact)  # pybullet-only
-            for geom in link.findall("visual") + link.findall("collision"):
+    for el in franka_hand():
+        if el.tag == "link":
+            for contact in el.findall("contact"):
+                el.remove(contact)  # pybullet-only
+            for geom in el.findall("visual") + el.findall("collision"):
                 for material in geom.findall("material"):
                     geom.remove(material)
-            _set_inertial(link, *HAND_INERTIA[name])
-            arm.append(link)
-        elif el.tag == "joint" and name in FINGER_JOINTS:
-            joint = copy.deepcopy(el)
-            joint.find("limit").set("effort", "100")
-            arm.append(joint)
-    mount = ET.SubElement(arm, "joint", name="xarm_hand_mount", type="fixed")
-    ET.SubElement(mount, "parent", link=FLANGE)
-    ET.SubElement(mount, "child", link="panda_hand")
-    ET.SubElement(mount, "origin", rpy="0 0 0", xyz="0 0 0")
+            _set_inertial(el, *HAND_INERTIA[el.get("name")])
+        else:
+            el.find("limit").set("effort", "100")
+        arm.append(el)
+    add_fixed_joint(arm, "xarm_hand_mount", FLANGE, "panda_hand")
     ET.SubElement(arm, "link", name=TCP_LINK)
-    tcp = ET.SubElement(arm, "joint", name="panda_hand_tcp_joint", type="fixed")
-    ET.SubElement(tcp, "parent", link="panda_hand")
-    ET.SubElement(tcp, "child", link=TCP_LINK)
-    ET.SubElement(tcp, "origin", rpy="0 0 0", xyz=f"0 0 {TCP_OFFSET}")
+    add_fixed_joint(arm, "panda_hand_tcp_joint", "panda_hand", TCP_LINK, f"0 0 {TCP_OFFSET}")
     arm.set("name", AGENT_UID)
     return ET.tostring(arm, encoding="unicode")
-
-
-def urdf_file() -> Path:
-    """``urdf_text`` written once to a content-addressed file that SAPIEN can load."""
-    text = urdf_text()
-    digest = hashlib.sha1(text.encode()).hexdigest()[:12]
-    path = Path(tempfile.gettempdir()) / "mimicgen-pipe-robots" / f"{AGENT_UID}-{digest}.urdf"
-    if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
-    return path
 
 
 @register_agent()
@@ -134,7 +102,7 @@ class XArm6PandaHand(Panda):
     """ManiSkill's Panda agent (controllers, grasp check, gripper materials) on the xArm6."""
 
     uid = AGENT_UID
-    urdf_path = str(urdf_file())
+    urdf_path = str(urdf_file(urdf_text(), AGENT_UID))
     keyframes = dict(rest=Keyframe(qpos=REST_QPOS, pose=sapien.Pose()))
     arm_joint_names = [f"joint{i}" for i in range(1, 7)]
     gripper_joint_names = list(FINGER_JOINTS)

@@ -8,7 +8,6 @@ import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
 
 from envs.pybullet.robots import (
-    FINGER_JOINTS,
     FINGER_OPEN,
     HOME_TCP,
     TCP_LINK,
@@ -17,6 +16,7 @@ from envs.pybullet.robots import (
     robot_urdf_file,
 )
 from envs.pybullet.tasks import ROBOT_BASE_XY, TASKS, on_top, peg_inserted, sample_object_poses
+from envs.urdf import FINGER_JOINTS
 from mimicgen_pipe import poses
 from mimicgen_pipe.controller import (
     DeltaPoseController,

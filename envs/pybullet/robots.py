@@ -14,24 +14,18 @@ pytorch-kinematics and handed to mimicgen_pipe.kinematics as arrays.
 
 from __future__ import annotations
 
-import hashlib
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from envs.urdf import PANDA_URDF, add_fixed_joint, franka_hand, load_urdf, urdf_file
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.kinematics import Chain
 
 TCP_LINK = "panda_grasptarget"
-FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
 FINGER_OPEN = 0.04  # [m] per finger: the Franka hand opens 8 cm
-HAND_LINKS = ("panda_hand", "panda_leftfinger", "panda_rightfinger", "panda_grasptarget")
-HAND_JOINTS = ("panda_finger_joint1", "panda_finger_joint2", "panda_grasptarget_hand")
-PANDA_URDF = "franka_panda/panda.urdf"
 # home TCP pose in the robot base frame: 0.45 m ahead, 0.25 m up, z axis pointing down
 HOME_TCP = np.array(
     [[1.0, 0.0, 0.0, 0.45], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.25], [0.0, 0.0, 0.0, 1.0]]
@@ -76,66 +70,25 @@ def robot_spec(name: str) -> RobotSpec:
     return ROBOTS[name]
 
 
-def _resolve(urdf: str) -> Path:
-    import pybullet_data
-
-    path = Path(urdf)
-    if not path.is_absolute():
-        path = Path(pybullet_data.getDataPath()) / path
-    if not path.is_file():
-        raise InputError(f"robot URDF {path}: no such file")
-    return path
-
-
-def _absolute_meshes(root: ET.Element, urdf_dir: Path) -> None:
-    for mesh in root.iter("mesh"):
-        name = mesh.get("filename", "")
-        name = name.removeprefix("package://")
-        if not os.path.isabs(name):
-            mesh.set("filename", str(urdf_dir / name))
-
-
 def robot_urdf_text(spec: RobotSpec) -> str:
     """The URDF of ``spec``'s arm with the Franka hand, mesh paths made absolute."""
-    arm_path = _resolve(spec.urdf)
-    arm = ET.parse(arm_path).getroot()
-    for el in [el for el in arm if el.tag in ("transmission", "gazebo")]:
-        arm.remove(el)  # ROS control blocks; pytorch-kinematics cannot parse xArm's
-    _absolute_meshes(arm, arm_path.parent)
+    arm = load_urdf(spec.urdf)
     if spec.flange is not None:
-        if not any(link.get("name") == spec.flange for link in arm.iter("link")):
-            raise InputError(f"robot URDF {arm_path}: no link {spec.flange!r} to mount the hand on")
-        panda_path = _resolve(PANDA_URDF)
-        panda = ET.parse(panda_path).getroot()
-        _absolute_meshes(panda, panda_path.parent)
-        for el in panda:
-            if (el.tag == "link" and el.get("name") in HAND_LINKS) or (
-                el.tag == "joint" and el.get("name") in HAND_JOINTS
-            ):
-                arm.append(el)
-        mount = ET.SubElement(arm, "joint", name="hand_mount", type="fixed")
-        ET.SubElement(mount, "parent", link=spec.flange)
-        ET.SubElement(mount, "child", link="panda_hand")
-        ET.SubElement(
-            mount,
-            "origin",
-            xyz=" ".join(map(str, spec.mount_xyz)),
-            rpy=" ".join(map(str, spec.mount_rpy)),
+        arm.extend(franka_hand(("panda_grasptarget",), ("panda_grasptarget_hand",)))
+        add_fixed_joint(
+            arm,
+            "hand_mount",
+            spec.flange,
+            "panda_hand",
+            " ".join(map(str, spec.mount_xyz)),
+            " ".join(map(str, spec.mount_rpy)),
         )
     return ET.tostring(arm, encoding="unicode")
 
 
 def robot_urdf_file(spec: RobotSpec) -> Path:
-    """``robot_urdf_text`` written once to a content-addressed file that PyBullet can load."""
-    text = robot_urdf_text(spec)
-    digest = hashlib.sha1(text.encode()).hexdigest()[:12]
-    path = Path(tempfile.gettempdir()) / "mimicgen-pipe-robots" / f"{spec.name}-{digest}.urdf"
-    if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
-    return path
+    """``robot_urdf_text`` in a file PyBullet can load."""
+    return urdf_file(robot_urdf_text(spec), spec.name)
 
 
 def robot_chain(spec: RobotSpec) -> Chain:
