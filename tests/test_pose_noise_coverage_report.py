@@ -295,6 +295,7 @@ def test_generation_sees_noisy_poses_and_records_true_ones(pipeline, tmp_path):
         argparse.Namespace(
             params=str(params),
             variant="D1",
+            attempts=None,
             parsed=str(noisy_path),
             out=str(out),
             metrics=str(tmp_path / "m.json"),
@@ -321,6 +322,7 @@ def test_generation_sees_noisy_poses_and_records_true_ones(pipeline, tmp_path):
             argparse.Namespace(
                 params=str(params),
                 variant="D1",
+                attempts=None,
                 parsed=str(noisy_path),
                 out=str(tmp_path / "refused.zarr"),
                 metrics=str(tmp_path / "refused.json"),
