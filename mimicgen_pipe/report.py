@@ -642,26 +642,34 @@ PAPER_TRANSFER = {
 }
 
 
-def transfer_blocks(
+def transfer_table(
     tasks: Sequence[str],
     variants: Sequence[str],
     robots: Sequence[str],
     metrics: Mapping[str, Mapping[str, Any]],
-) -> list[Block]:
-    """Robot transfer (paper E.1): DGR per task variant x arm from the metrics files
-    generate_<task>_<variant>_<robot>, with the attempts stopped at IK beside each."""
+) -> Table:
+    """DGR per task variant x arm from the metrics files generate_<task>_<variant>_<robot>
+    (or generate_<task>_<variant>, the main run, for the source arm), with the attempts
+    stopped at IK beside each."""
     rows = []
     for task in tasks:
         for v in variants:
             cells = [f"{task} ({v})"]
             for r in robots:
                 m = metrics.get(f"generate_{task}_{v}_{r}")
+                if m is None and r == "panda":
+                    m = metrics.get(f"generate_{task}_{v}")
                 cells.append(
                     MISSING
                     if m is None
                     else f"{fmt(m['dgr'])} ({m.get('ik_failures', 0)}/{m['attempts']} IK)"
                 )
             rows.append(tuple(cells))
+    return Table(("task (variant)", *robots), tuple(rows))
+
+
+def transfer_blocks(tables: Sequence[Table]) -> list[Block]:
+    """Robot transfer (paper E.1): the tables of :func:`transfer_table` under one heading."""
     paper = "; ".join(
         f"{v}: " + ", ".join(f"{arm} {val}" for arm, val in arms.items())
         for v, arms in PAPER_TRANSFER.items()
@@ -671,7 +679,8 @@ def transfer_blocks(
         Text(
             "Source demos recorded with the Panda; each cell generated with the arm of its "
             "column from those demos: DGR % (attempts stopped because a target was outside "
-            f"the arm's workspace / attempts). Paper Table E.1, Square: {paper}."
+            f"the arm's workspace / attempts). Paper Table E.1, Square: {paper}. The "
+            "ManiSkill Panda cells are the main run (generated until 1000 successes)."
         ),
-        Table(("task (variant)", *robots), tuple(rows)),
+        *tables,
     ]

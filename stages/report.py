@@ -17,6 +17,7 @@ from mimicgen_pipe.report import (
     render_html,
     render_markdown,
     transfer_blocks,
+    transfer_table,
 )
 from mimicgen_pipe.store import atomic_directory
 from stages import add_selection_arguments, stage_params
@@ -76,8 +77,13 @@ def run(args: argparse.Namespace) -> None:
         if png.exists():
             images[png.name], heatmaps[v] = png.read_bytes(), png.name
     blocks = build_report(params.task, variants, this_run, ablations, paper, heatmaps)
-    t = params.transfer
-    blocks += transfer_blocks(t.tasks, t.variants, t.robots, this_run.metrics)
+    t, m = params.transfer, this_run.metrics
+    blocks += transfer_blocks(
+        [
+            transfer_table(t.tasks, t.variants, t.robots, m),
+            transfer_table([params.task], variants, ["panda", *t.maniskill_robots], m),
+        ]
+    )
     with atomic_directory(out) as tmp:
         # the heat maps are copied beside report.md so that the folder stands on its own
         (tmp / "report.md").write_text(render_markdown(blocks))

@@ -383,3 +383,17 @@ def test_coverage_and_report_stages_on_the_pipeline(pipeline, tmp_path):
     assert (out / "coverage_stack_cube_D1.png").exists()
     assert f"| D1 | 3 | {kept} / {kept + failed} | {m['support_coverage_joint']:.1f} |" in md
     assert "data:image/png;base64," in (out / "report.html").read_text()
+
+
+def test_transfer_table_reads_each_arms_metrics():
+    from mimicgen_pipe.report import transfer_table
+
+    metrics = {
+        "generate_stack_D0_panda": {"dgr": 95.0, "attempts": 200, "ik_failures": 7},
+        "generate_stack_D0_iiwa": {"dgr": 78.5, "attempts": 200, "ik_failures": 42},
+        "generate_stack_cube_D0": {"dgr": 96.2, "attempts": 1039},  # a main run, no IK check
+    }
+    table = transfer_table(["stack"], ["D0"], ["panda", "iiwa", "xarm6"], metrics)
+    assert table.rows == (("stack (D0)", "95.0 (7/200 IK)", "78.5 (42/200 IK)", "missing"),)
+    main = transfer_table(["stack_cube"], ["D0"], ["panda", "xarm6"], metrics)
+    assert main.rows == (("stack_cube (D0)", "96.2 (0/1039 IK)", "missing"),)
