@@ -15,6 +15,7 @@ from mimicgen_pipe.errors import InputError
 PANDA_URDF = "franka_panda/panda.urdf"
 HAND_LINKS = ("panda_hand", "panda_leftfinger", "panda_rightfinger")
 FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
+FINGER_OPEN = 0.04  # [m] per finger: the Franka hand opens 8 cm
 
 
 def resolve(urdf: str) -> Path:

@@ -122,19 +122,22 @@ def inverse_kinematics(
     targets = np.asarray(targets, np.float64).reshape(-1, 4, 4)
     q = np.array(np.broadcast_to(q0, (len(targets), chain.dof)), np.float64)
     eye = np.eye(6) * damping**2
-    starts = [None] + list(np.zeros((0, chain.dof)) if restarts is None else restarts)
-    for start in starts:
+
+    def unsolved(err: np.ndarray) -> np.ndarray:
+        return (np.linalg.norm(err[:, :3], axis=1) > position_tol) | (
+            np.linalg.norm(err[:, 3:], axis=1) > rotation_tol
+        )
+
+    for start in [None, *(() if restarts is None else restarts)]:
         if start is not None:
-            redo = ~_converged(chain, q, targets, position_tol, rotation_tol)
+            redo = unsolved(pose_error(forward_kinematics(chain, q)[0], targets))
             if not redo.any():
                 break
             q[redo] = start
         for _ in range(iterations):
             jac, tcp = jacobian(chain, q)
             err = pose_error(tcp, targets)
-            active = (np.linalg.norm(err[:, :3], axis=1) > position_tol) | (
-                np.linalg.norm(err[:, 3:], axis=1) > rotation_tol
-            )
+            active = unsolved(err)
             if not active.any():
                 break
             j, e = jac[active], err[active]
@@ -145,17 +148,6 @@ def inverse_kinematics(
             )
             dq = np.clip(dq, -max_step, max_step)
             q[active] = np.clip(q[active] + dq, chain.lower, chain.upper)
-    tcp, _ = forward_kinematics(chain, q)
-    err = pose_error(tcp, targets)
+    err = pose_error(forward_kinematics(chain, q)[0], targets)
     pos, rot = np.linalg.norm(err[:, :3], axis=1), np.linalg.norm(err[:, 3:], axis=1)
-    return IKResult(q, pos, rot, (pos <= position_tol) & (rot <= rotation_tol))
-
-
-def _converged(
-    chain: Chain, q: np.ndarray, targets: np.ndarray, position_tol: float, rotation_tol: float
-) -> np.ndarray:
-    tcp, _ = forward_kinematics(chain, q)
-    err = pose_error(tcp, targets)
-    return (np.linalg.norm(err[:, :3], axis=1) <= position_tol) & (
-        np.linalg.norm(err[:, 3:], axis=1) <= rotation_tol
-    )
+    return IKResult(q, pos, rot, ~unsolved(err))

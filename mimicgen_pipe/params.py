@@ -267,16 +267,21 @@ def _build(cls: type, raw: Any, where: str, path: Path) -> Any:
     return cls(**kwargs)
 
 
+def read_yaml(path: Path, what: str) -> Any:
+    """The YAML document at ``path``; InputError naming the file when it is missing
+    (``what`` says what was expected there) or not valid YAML."""
+    if not path.exists():
+        raise InputError(f"{path}: {what} not found")
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML ({exc})") from exc
+
+
 def load_params(path: str | Path = "params.yaml") -> Params:
     """Read and validate params.yaml; raises InputError naming the file and key."""
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: params file not found")
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML ({exc})") from exc
-    return _build(Params, raw, "", path)
+    return _build(Params, read_yaml(path, "params file"), "", path)
 
 
 def with_overrides(

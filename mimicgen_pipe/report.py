@@ -20,10 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.params import Params, read_yaml
 from mimicgen_pipe.pose_noise import NAMED_LEVELS
 
 MISSING = "missing"
@@ -173,12 +171,7 @@ class PaperResults:
 def load_paper_results(path: str | Path) -> PaperResults:
     """Read the paper's numbers; InputError naming the file and entry when malformed."""
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: paper results file not found")
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML ({exc})") from exc
+    raw = read_yaml(path, "paper results file")
     if not isinstance(raw, dict) or not isinstance(raw.get("entries"), list):
         raise InputError(f"{path}: expected a mapping with a list under 'entries'")
     entries = []

@@ -37,6 +37,13 @@ REPO = Path(__file__).resolve().parents[1]
 PAPER = REPO / "reference/paper_results.yaml"
 
 
+def run_stage(stage, *argv) -> None:
+    """Run a stage module in-process with arguments parsed by its own parser."""
+    parser = argparse.ArgumentParser()
+    stage.add_arguments(parser)
+    stage.run(parser.parse_args([str(a) for a in argv]))
+
+
 def random_poses(rng, n):
     return poses.pose_from_pq(rng.uniform(-0.5, 0.5, (n, 3)), rng.standard_normal((n, 4)))
 
@@ -280,7 +287,7 @@ def test_generation_sees_noisy_poses_and_records_true_ones(pipeline, tmp_path):
         "generate: {mode: fixed_attempts, max_attempts: 1, workers: 1, seed: 7}\n"
     )
     noisy_path = tmp_path / "pose_noise.zarr"
-    pose_noise.run(argparse.Namespace(params=str(params), parsed=str(parsed), out=str(noisy_path)))
+    run_stage(pose_noise, "--params", params, "--parsed", parsed, "--out", noisy_path)
     noisy = read_store(noisy_path)
     for key, value in before.data.items():
         same = np.array_equal(noisy.data[key], value)
@@ -291,16 +298,10 @@ def test_generation_sees_noisy_poses_and_records_true_ones(pipeline, tmp_path):
     assert 0.005 < np.abs(dpos).max() <= 0.010
 
     out = tmp_path / "gen.zarr"
-    generate.run(
-        argparse.Namespace(
-            params=str(params),
-            variant="D1",
-            attempts=None,
-            parsed=str(noisy_path),
-            out=str(out),
-            metrics=str(tmp_path / "m.json"),
-        )
-    )
+    run_stage(
+        generate, "--params", params, "--variant", "D1", "--parsed", noisy_path,
+        "--out", out, "--metrics", tmp_path / "m.json",
+    )  # fmt: skip
     gen = [s for s in (read_store(out), read_store(tmp_path / "gen_failed.zarr")) if s.n_episodes]
     gen = gen[0]
     true_cube = gen.poses("initial_object_poses")[0, 0]
@@ -318,16 +319,10 @@ def test_generation_sees_noisy_poses_and_records_true_ones(pipeline, tmp_path):
     # the same source demos at another level are refused before any work
     params.write_text(params.read_text().replace("L2", "L1"))
     with pytest.raises(InputError, match="source demos carry pose noise 10 mm / 10 deg"):
-        generate.run(
-            argparse.Namespace(
-                params=str(params),
-                variant="D1",
-                attempts=None,
-                parsed=str(noisy_path),
-                out=str(tmp_path / "refused.zarr"),
-                metrics=str(tmp_path / "refused.json"),
-            )
-        )
+        run_stage(
+            generate, "--params", params, "--variant", "D1", "--parsed", noisy_path,
+            "--out", tmp_path / "refused.zarr", "--metrics", tmp_path / "refused.json",
+        )  # fmt: skip
     assert not (tmp_path / "refused.zarr").exists()
 
 

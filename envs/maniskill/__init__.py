@@ -14,7 +14,6 @@ def check_robot(robot: str) -> None:
 
 
 def make_env(task: str, robot: str = "panda"):
-    check_robot(robot)
     if robot == "xarm6":
         from envs.maniskill.xarm6 import XArm6ManiSkillEnv
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
@@ -108,11 +109,18 @@ class ManiSkillEnv:
     backend = "maniskill"
     control_mode = "pd_ee_delta_pose"
     control_freq = 20
+    # robot name -> ManiSkill agent uid, and task -> registered env id; another arm's env
+    # (envs/maniskill/xarm6.py) swaps in its own
+    agent_uids = {r: r for r in ROBOTS}
+    env_ids = {name: t.env_id for name, t in TASKS.items()}
 
     def __init__(self, task: str = "stack_cube", robot: str = "panda") -> None:
-        if robot not in ROBOTS:
-            raise InputError(f"robot {robot!r}: unknown for maniskill (known: {', '.join(ROBOTS)})")
-        self.task = TASKS[task]
+        if robot not in self.agent_uids:
+            known = ", ".join(self.agent_uids)
+            raise InputError(f"robot {robot!r}: unknown for maniskill (known: {known})")
+        if task not in self.env_ids:
+            raise InputError(f"task {task!r}: unknown for maniskill with robot {robot!r}")
+        self.task = dataclasses.replace(TASKS[task], env_id=self.env_ids[task])
         self.spec = self.task.spec
         self.robot = robot
         self._env = gym.make(
@@ -122,7 +130,7 @@ class ManiSkillEnv:
             control_mode=self.control_mode,
             sim_backend="physx_cpu",
             render_backend="none",
-            robot_uids=robot,
+            robot_uids=self.agent_uids[robot],
         )
         self.unwrapped = self._env.unwrapped
         self._u = self.unwrapped

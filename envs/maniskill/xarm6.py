@@ -15,13 +15,11 @@ reset variants) with the robot base at x = -0.4: from the Panda's -0.615 the xAr
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import xml.etree.ElementTree as ET
 
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
 
-import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 import sapien  # noqa: E402
 from mani_skill.agents.base_agent import Keyframe  # noqa: E402
@@ -31,17 +29,15 @@ from mani_skill.envs.tasks import StackCubeEnv  # noqa: E402
 from mani_skill.utils import sapien_utils  # noqa: E402
 from mani_skill.utils.registration import register_env  # noqa: E402
 
-from envs.maniskill.env import ManiSkillEnv, MimicGenStackCubeEnv, _pose_of  # noqa: E402
-from envs.maniskill.tasks import TASKS  # noqa: E402
+from envs.maniskill.env import ManiSkillEnv, MimicGenStackCubeEnv  # noqa: E402
 from envs.urdf import (  # noqa: E402
     FINGER_JOINTS,
+    FINGER_OPEN,
     add_fixed_joint,
     franka_hand,
     load_urdf,
     urdf_file,
 )
-from mimicgen_pipe.controller import DeltaPoseController  # noqa: E402
-from mimicgen_pipe.errors import InputError  # noqa: E402
 
 ROBOT = "xarm6"
 AGENT_UID = "xarm6_pandahand"
@@ -53,7 +49,6 @@ TCP_OFFSET = 0.1034  # [m] ahead of panda_hand along its z axis, as ManiSkill's 
 BASE_XYZ = (-0.4, 0.0, 0.0)  # [m] world position of the robot base
 # arm joints [rad] then fingers [m]: the TCP pointing down at world (0, 0, 0.18), fingers open
 REST_QPOS = np.array([0.0, -0.11784, -0.7075, 0.0, 0.82534, 0.0, 0.04, 0.04])
-FINGER_OPEN = 0.04
 # pybullet_data's hand/finger inertias (0.1 kg m^2) are unphysical for PhysX; values like
 # ManiSkill's panda_v2: (com xyz, mass [kg], principal inertia diag [kg m^2])
 HAND_INERTIA = {
@@ -149,35 +144,5 @@ class MimicGenStackCubeXArm6Env(MimicGenStackCubeEnv):
 class XArm6ManiSkillEnv(ManiSkillEnv):
     """ManiSkillEnv on the xArm6 (see the module docstring); the protocol is the parent's."""
 
-    def __init__(self, task: str = "stack_cube", robot: str = ROBOT) -> None:
-        if robot != ROBOT:
-            raise InputError(f"robot {robot!r}: XArm6ManiSkillEnv runs {ROBOT!r} only")
-        if task not in ENV_IDS:
-            raise InputError(f"task {task!r}: unknown for maniskill/{ROBOT}")
-        # ManiSkillEnv.__init__ with our env id and agent uid (it only knows the Panda's)
-        self.task = dataclasses.replace(TASKS[task], env_id=ENV_IDS[task])
-        self.spec = self.task.spec
-        self.robot = robot
-        self._env = gym.make(
-            self.task.env_id,
-            obs_mode="none",
-            reward_mode="none",
-            control_mode=self.control_mode,
-            sim_backend="physx_cpu",
-            render_backend="none",
-            robot_uids=AGENT_UID,
-        )
-        self.unwrapped = self._u = self._env.unwrapped
-        arm = self._u.agent.controller.controllers["arm"].config
-        self.control_freq = int(self._u.control_freq)
-        self.controller = DeltaPoseController(
-            pos_scale=float(arm.pos_upper),
-            rot_scale=float(arm.rot_lower),
-            rot_repr="euler_xyz",
-            root_pose=_pose_of(self._u.agent.robot.pose.raw_pose),
-        )
-        self._info: dict = {}
-        self._eef: np.ndarray | None = None
-        self._objects: dict[str, np.ndarray] | None = None
-        self._bind()
-        self.reset(seed=0, variant="D0")
+    agent_uids = {ROBOT: AGENT_UID}
+    env_ids = ENV_IDS

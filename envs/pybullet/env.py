@@ -8,7 +8,6 @@ import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
 
 from envs.pybullet.robots import (
-    FINGER_OPEN,
     HOME_TCP,
     TCP_LINK,
     robot_chain,
@@ -16,7 +15,7 @@ from envs.pybullet.robots import (
     robot_urdf_file,
 )
 from envs.pybullet.tasks import ROBOT_BASE_XY, TASKS, on_top, peg_inserted, sample_object_poses
-from envs.urdf import FINGER_JOINTS
+from envs.urdf import FINGER_JOINTS, FINGER_OPEN
 from mimicgen_pipe import poses
 from mimicgen_pipe.controller import (
     DeltaPoseController,
@@ -88,8 +87,7 @@ class PyBulletEnv:
         self._ik_restarts[:, -1] = np.linspace(lo + 0.1, hi - 0.1, 8)
         self._sim = BulletClient(connection_mode=p.DIRECT)
         self._sim.setAdditionalSearchPath(pybullet_data.getDataPath())
-        self._build()
-        self.reset(seed=0, variant="D0")
+        self.reset(seed=0, variant="D0")  # builds the scene
 
     # -- scene ----------------------------------------------------------------------------
     def _build(self) -> None:
@@ -157,8 +155,8 @@ class PyBulletEnv:
     def reset(self, seed: int, variant: str) -> None:
         rng = np.random.default_rng(seed)
         objects = sample_object_poses(self.task, variant, rng)
-        n = len(self._arm) + len(self._fingers)
-        state = [self.home_q, np.full(2, FINGER_OPEN), np.zeros(n)]
+        fingers = np.full(len(FINGER_JOINTS), FINGER_OPEN)
+        state = [self.home_q, fingers, np.zeros(self.chain.dof + len(fingers))]
         for name in self.spec.objects:
             pq = poses.pose_to_pq(objects[name])
             state += [pq[:3], pq[[4, 5, 6, 3]], np.zeros(6)]
@@ -167,7 +165,7 @@ class PyBulletEnv:
         self.set_state(np.concatenate(state).astype(np.float32))
 
     def rebuild(self) -> None:
-        self._build()  # set_state builds a new scene anyway
+        """Nothing to do: every reset or set_state builds a new scene."""
 
     def step(self, action: np.ndarray) -> None:
         a = clip_actions(action)

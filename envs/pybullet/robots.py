@@ -14,6 +14,7 @@ pytorch-kinematics and handed to mimicgen_pipe.kinematics as arrays.
 
 from __future__ import annotations
 
+import functools
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +26,6 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.kinematics import Chain
 
 TCP_LINK = "panda_grasptarget"
-FINGER_OPEN = 0.04  # [m] per finger: the Franka hand opens 8 cm
 # home TCP pose in the robot base frame: 0.45 m ahead, 0.25 m up, z axis pointing down
 HOME_TCP = np.array(
     [[1.0, 0.0, 0.0, 0.45], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.25], [0.0, 0.0, 0.0, 1.0]]
@@ -70,6 +70,7 @@ def robot_spec(name: str) -> RobotSpec:
     return ROBOTS[name]
 
 
+@functools.lru_cache
 def robot_urdf_text(spec: RobotSpec) -> str:
     """The URDF of ``spec``'s arm with the Franka hand, mesh paths made absolute."""
     arm = load_urdf(spec.urdf)
