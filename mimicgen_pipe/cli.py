@@ -1,12 +1,20 @@
-"""``mimicgen-pipe <stage>``: every pipeline stage from the command line."""
+"""``mimicgen-pipe <stage>``: every pipeline stage from the command line.
+
+Failures a user can act on end with one line on stderr, never a traceback: bad input (exit
+2, also a second run on outputs that one is writing), and Ctrl-C or SIGTERM (exit 130/143,
+after the stage's worker processes are gone and its temporaries removed)."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import signal
 import sys
 
+from mimicgen_pipe import outputs
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.interrupts import Interrupted, as_exceptions
 
 STAGES = {
     "source": "record source demos on D0 (motion planners or a trajectory file)",
@@ -21,6 +29,39 @@ STAGES = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    stage = next((a for a in argv if a in STAGES), None)
+    prog = f"mimicgen-pipe {stage}" if stage else "mimicgen-pipe"
+    # the handlers go in before the stages' (slow) imports, so that an early Ctrl-C too
+    # ends with one line
+    with as_exceptions():
+        try:
+            return _run_stage(argv)
+        except KeyboardInterrupt:  # a library that put Python's own SIGINT handler back
+            return _interrupted(prog, Interrupted(signal.SIGINT))
+        except Interrupted as exc:
+            return _interrupted(prog, exc)
+
+
+def _interrupted(prog: str, exc: Interrupted) -> int:
+    """One line on stderr; the exit status a shell gives a command killed by the signal."""
+    _close_progress_bars()
+    what = "outputs complete" if outputs.wrote_outputs() else "nothing written"
+    print(f"{prog}: {exc.describe()}; {what}", file=sys.stderr)
+    return exc.exit_code
+
+
+def _close_progress_bars() -> None:
+    """Finish the progress bars an interrupt left open (their line ends), so that the
+    message starts a line of its own."""
+    from tqdm import tqdm
+
+    for bar in list(getattr(tqdm, "_instances", ())):
+        with contextlib.suppress(Exception):
+            bar.close()
+
+
+def _run_stage(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="mimicgen-pipe",
         description="MimicGen data generation as DVC stages; `dvc repro` runs them all.",
@@ -33,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
         module.add_arguments(sub.add_parser(name, help=help_text, description=module.__doc__))
     args = parser.parse_args(argv)
     try:
-        modules[args.stage].run(args)
+        with outputs.claims():
+            modules[args.stage].run(args)
     except InputError as exc:
         print(f"mimicgen-pipe {args.stage}: error: {exc}", file=sys.stderr)
         return 2

@@ -4,7 +4,6 @@ the number of worker processes."""
 
 from __future__ import annotations
 
-import multiprocessing as mp
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -13,6 +12,7 @@ import numpy as np
 
 from mimicgen_pipe.generation import Env
 from mimicgen_pipe.observations import low_dim_observation
+from mimicgen_pipe.workers import imap_in_workers
 
 EVAL_SEED_BASE = 1 << 30  # generation and source seeds are < 2**30 (runner.attempt_seed)
 EPISODES_PER_BLOCK = 10
@@ -93,9 +93,8 @@ def run_evaluation(
         for name in policies
         for i in range(0, len(seeds), EPISODES_PER_BLOCK)
     ]
-    if workers <= 1:
-        _init_worker(job)
-        yield from map(_run_block, tasks)
-        return
-    with mp.get_context("spawn").Pool(workers, _init_worker, (job,)) as pool:
-        yield from pool.imap(_run_block, tasks)
+    results = imap_in_workers(_run_block, tasks, workers, _init_worker, (job,))
+    try:
+        yield from results
+    finally:
+        results.close()

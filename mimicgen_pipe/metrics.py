@@ -10,17 +10,25 @@ from typing import Any
 
 import numpy as np
 
+from mimicgen_pipe.outputs import temporary_name
+
 
 def write_metrics(path: str | os.PathLike, metrics: Mapping[str, Any]) -> Path:
+    """Write flat metrics as JSON through a temporary file of a name no other writer uses
+    (pid and random suffix), so that concurrent writers never clobber each other's
+    half-written file and the reader sees a whole file, old or new."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = temporary_name(path)
     # NaN/inf are not JSON; a value that could not be measured is written as null
     clean = {
         k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in metrics.items()
     }
-    tmp.write_text(json.dumps(clean, indent=2, sort_keys=True) + "\n")
-    tmp.replace(path)
+    try:
+        tmp.write_text(json.dumps(clean, indent=2, sort_keys=True) + "\n")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
 
 

@@ -196,10 +196,24 @@ _RANGES: dict[str, tuple[float, float]] = {
     "transfer.attempts": (1, 10_000_000),
 }
 
+
 # Keys whose values need more than a type and a range: key -> why the value is wrong (None
 # when it is right).
+def _non_empty_unique(value: Any) -> str | None:
+    if isinstance(value, list) and not value:
+        return "expected at least one entry, got []"
+    if isinstance(value, list) and len(set(map(str, value))) < len(value):
+        return f"expected distinct entries, got {value!r}"
+    return None
+
+
 _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "pose_noise.level": level_error,
+    "generate.variants": _non_empty_unique,
+    "train.obs_keys": _non_empty_unique,
+    "transfer.tasks": _non_empty_unique,
+    "transfer.variants": _non_empty_unique,
+    "transfer.robots": _non_empty_unique,
 }
 
 
@@ -281,7 +295,17 @@ def read_yaml(path: Path, what: str) -> Any:
 def load_params(path: str | Path = "params.yaml") -> Params:
     """Read and validate params.yaml; raises InputError naming the file and key."""
     path = Path(path)
-    return _build(Params, read_yaml(path, "params file"), "", path)
+    raw = read_yaml(path, "params file")
+    hints = typing.get_type_hints(Params)
+    sections = [name for name, tp in hints.items() if dataclasses.is_dataclass(tp)]
+    if not raw:
+        raise InputError(f"{path}: empty; expected the pipeline's params (sections {sections})")
+    if isinstance(raw, dict) and not set(raw) & set(sections):
+        raise InputError(
+            f"{path}: no stage sections; expected at least one of {sections} "
+            "(the repository's params.yaml lists every key)"
+        )
+    return _build(Params, raw, "", path)
 
 
 def with_overrides(
@@ -303,5 +327,23 @@ def with_overrides(
 
 
 def as_dict(params: Any) -> dict[str, Any]:
-    """Params as plain data, for store attributes and metrics."""
+    """Params as plain data, for checkpoints and metrics."""
     return dataclasses.asdict(params)
+
+
+# Keys that cannot change a stage's data (process counts), left out of what stores record and
+# of the params dvc.yaml declares for the stage, so that changing them re-runs nothing.
+_NOT_DATA = {"generate": ("workers", "variants")}
+
+
+def data_params(params: Params, stage: Literal["source", "generate"]) -> dict[str, Any]:
+    """The params that shape a stage's output store, as recorded in its attrs: exactly the
+    keys dvc.yaml declares for the stage (so the same declared params give the same bytes).
+    source: task, backend, source. generate: generate without worker counts and the variant
+    list (and without num_demos in fixed_attempts mode, where it is unused), pose_noise."""
+    if stage == "source":
+        return {"task": params.task, "backend": params.backend, "source": as_dict(params.source)}
+    g = as_dict(params.generate)
+    for key in _NOT_DATA["generate"] + (("num_demos",) if g["mode"] == "fixed_attempts" else ()):
+        del g[key]
+    return {"generate": g, "pose_noise": as_dict(params.pose_noise)}

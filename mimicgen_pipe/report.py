@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.outputs import check_same_run
 from mimicgen_pipe.params import Params, read_yaml
 from mimicgen_pipe.pose_noise import NAMED_LEVELS
 
@@ -213,6 +214,25 @@ class Run:
     name: str
     params: Params
     metrics: Mapping[str, Mapping[str, Any]]
+
+
+def check_run_ids(metrics: Mapping[str, Mapping[str, Any]], folder: str | Path) -> None:
+    """InputError when metrics that the report puts side by side describe different generate
+    runs: generate_<x> (run_id) against coverage_<x> (run_id of the stores it measured),
+    train_<x> and evaluate_<x>_on_<v> (data_run_id of the store the policy learnt from).
+    Metrics written before run ids existed carry none and are not compared."""
+    for stem, m in metrics.items():
+        if not stem.startswith("generate_") or m.get("run_id") is None:
+            continue
+        name = stem.removeprefix("generate_")
+        ids = {f"{Path(folder) / stem}.json run_id": m["run_id"]}
+        for other, om in metrics.items():
+            key = {f"coverage_{name}": "run_id", f"train_{name}": "data_run_id"}.get(other)
+            if key is None and other.startswith(f"evaluate_{name}_on_"):
+                key = "data_run_id"
+            if key is not None and om.get(key) is not None:
+                ids[f"{Path(folder) / other}.json {key}"] = om[key]
+        check_same_run(ids)
 
 
 def method_settings(params: Params) -> dict[str, Any]:

@@ -9,7 +9,6 @@ worker or many, whichever worker runs a block.
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -18,6 +17,7 @@ import numpy as np
 
 from mimicgen_pipe.generation import Attempt, Env, GenerationConfig, SourceDemos, run_attempt
 from mimicgen_pipe.taskspec import TaskSpec
+from mimicgen_pipe.workers import imap_in_workers
 
 
 def attempt_seed(seed: int, variant: str, attempt: int) -> int:
@@ -66,18 +66,12 @@ def run_attempts(
     job: AttemptJob, seeds: list[int], workers: int
 ) -> Iterator[tuple[int, Attempt, float]]:
     """Yield (seed, attempt, seconds) in the order of ``seeds``. Stop consuming to stop early:
-    the pool is torn down when the generator is closed."""
+    the pool is torn down when the generator is closed (or an exception, such as an
+    interrupt, goes through it)."""
     blocks = [seeds[i : i + ATTEMPTS_PER_BLOCK] for i in range(0, len(seeds), ATTEMPTS_PER_BLOCK)]
-    if workers <= 1:
-        _init_worker(job)
-        for block in blocks:
-            yield from _run_block(block)
-        return
-    ctx = mp.get_context("spawn")
-    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(job,))
+    results = imap_in_workers(_run_block, blocks, workers, _init_worker, (job,))
     try:
-        for results in pool.imap(_run_block, blocks, chunksize=1):
-            yield from results
+        for block in results:
+            yield from block
     finally:
-        pool.terminate()
-        pool.join()
+        results.close()

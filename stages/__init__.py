@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+import envs
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.params import Params, load_params, with_overrides
 
 
@@ -16,10 +18,29 @@ def add_selection_arguments(p: argparse.ArgumentParser, robot: bool = False) -> 
         p.add_argument("--robot", help="arm to generate with (default: generate.robot)")
 
 
+def check_variants(params: Params, path: str) -> None:
+    """InputError naming the params key when the main task (generate.variants) or a
+    robot-transfer task (transfer.variants) lacks one of the listed reset variants."""
+    t = params.transfer
+    lists = [("generate.variants", params.backend, params.task, params.generate.variants)]
+    lists += [("transfer.variants", t.backend, task, t.variants) for task in t.tasks]
+    for key, backend, task, variants in lists:
+        spec = envs.task_spec(backend, task)
+        for v in variants:
+            if v not in spec.variants:
+                raise InputError(
+                    f"{path}: {key}: {v!r} is not a reset variant of {task} on {backend} "
+                    f"(known: {', '.join(spec.variants)})"
+                )
+
+
 def stage_params(args: argparse.Namespace) -> Params:
-    """params.yaml, validated, with the command line's --backend/--task/--robot applied."""
+    """params.yaml, validated (including its variant lists against the task specs), with
+    the command line's --backend/--task/--robot applied."""
+    params = load_params(args.params)
+    check_variants(params, args.params)
     return with_overrides(
-        load_params(args.params),
+        params,
         getattr(args, "backend", None),
         getattr(args, "task", None),
         getattr(args, "robot", None),

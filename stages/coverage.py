@@ -19,6 +19,7 @@ from mimicgen_pipe.coverage import (
 )
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.outputs import check_same_run
 from mimicgen_pipe.store import read_store
 from stages import add_selection_arguments, stage_params
 
@@ -54,20 +55,17 @@ def run(args: argparse.Namespace) -> None:
     table_path = Path(args.table or layout.plot_file("coverage", params.task, args.variant))
     heatmap_path = Path(args.heatmap or layout.heatmap_file(params.task, args.variant))
     n_obj = len(spec.objects)
-    initial = {}
-    for path in (kept_path, failed_path):
-        store = read_store(path)
+    initial, run_ids = {}, {}
+    for path, kind in ((kept_path, "generated"), (failed_path, "failed")):
+        store = read_store(path, kind=kind, required_episodes=["initial_object_poses"])
         if store.attrs.get("task") != params.task or store.attrs.get("variant") != args.variant:
             raise InputError(
                 f"{path}: holds {store.attrs.get('task')!r} {store.attrs.get('variant')!r}, "
                 f"expected {params.task!r} {args.variant!r}"
             )
-        if "initial_object_poses" not in store.episodes:
-            raise InputError(f"{path}: meta/episodes/initial_object_poses missing")
-        poses = store.poses("initial_object_poses").reshape(-1, n_obj, 4, 4)
-        if not np.isfinite(poses).all():
-            raise InputError(f"{path}: meta/episodes/initial_object_poses holds NaN")
-        initial[path] = poses
+        initial[path] = store.poses("initial_object_poses").reshape(-1, n_obj, 4, 4)
+        run_ids[str(path)] = store.attrs.get("run_id")
+    check_same_run(run_ids)  # e.g. a new kept store beside the failed store of an older run
     kept = initial[kept_path]
     attempted = np.concatenate([kept, initial[failed_path]])
     if len(attempted) == 0:
@@ -87,7 +85,8 @@ def run(args: argparse.Namespace) -> None:
         attempted,
         bins,
     )
-    write_metrics(metrics_path, metrics)
+    # the run measured, so that the report can check it is the run generate's metrics describe
+    write_metrics(metrics_path, {"run_id": run_ids[str(kept_path)], **metrics})
     per_object = ", ".join(f"{o} {metrics[f'support_coverage_{o}']:.1f}%" for o in spec.objects)
     print(
         f"coverage: {params.task} {args.variant}: {gen_cov.episodes} generated of "

@@ -15,8 +15,10 @@ import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.evaluation import EvalJob, evaluation_seed, run_evaluation
+from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import evaluation_metrics, write_metrics
 from mimicgen_pipe.observations import observation_dims
+from mimicgen_pipe.outputs import check_same_run, claim, output_set
 from mimicgen_pipe.training import load_checkpoint, load_rollout_policy
 from stages import add_selection_arguments, stage_params
 
@@ -54,6 +56,7 @@ def run(args: argparse.Namespace) -> None:
     policies = Path(args.policies or layout.policy_dir(params.task, args.data))
     metrics_path = Path(args.metrics or layout.metrics_file("evaluate", params.task, name))
     plot_path = Path(args.plot or layout.plot_file("evaluate", params.task, name))
+    claim(metrics_path, plot_path)  # fails at once if another run writes them
 
     # a policy acts with the arm its training data was recorded with
     robot = params.source.robot if args.data == "source" else params.generate.robot
@@ -61,6 +64,7 @@ def run(args: argparse.Namespace) -> None:
     runs = find_checkpoints(policies)
     expected = observation_dims(spec.objects)
     epochs: dict[Path, int] = {}
+    data_run_ids: dict[str, object] = {}
     for ckpt in (c for ckpts in runs.values() for c in ckpts):
         model, meta = load_checkpoint(ckpt)
         layout_ = dict(zip(model.config.obs_keys, model.config.obs_dims, strict=True))
@@ -76,6 +80,8 @@ def run(args: argparse.Namespace) -> None:
                 f"params train.obs_keys is {list(params.train.obs_keys)}"
             )
         epochs[ckpt] = int(meta["epoch"])
+        data_run_ids[str(ckpt)] = meta.get("data_run_id")
+    check_same_run(data_run_ids, "train")  # checkpoints of one training run only
 
     e = params.evaluate
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
@@ -95,6 +101,9 @@ def run(args: argparse.Namespace) -> None:
         for ckpt, rollouts in results:
             success[ckpt] += [r.success for r in rollouts]
             bar.update(len(rollouts))
+    except Interrupted as exc:
+        exc.detail = f"after {bar.n} of {bar.total} episodes"
+        raise
     finally:
         results.close()
         bar.close()
@@ -104,20 +113,21 @@ def run(args: argparse.Namespace) -> None:
         seed: [(epochs[c], 100.0 * float(np.mean(success[str(c)]))) for c in ckpts]
         for seed, ckpts in runs.items()
     }
-    plot_path.parent.mkdir(parents=True, exist_ok=True)
-    with plot_path.open("w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["seed", "epoch", "success_rate"])
-        writer.writerows((s, ep, rate) for s, rows in per_run.items() for ep, rate in rows)
     metrics = evaluation_metrics(per_run)
     metrics.update(
+        data_run_id=next(iter(data_run_ids.values())),
         episodes=e.episodes,
         horizon=spec.horizon,
         wall_seconds=wall,
         seconds_per_episode=wall / (len(names) * e.episodes),
         workers=e.workers,
     )
-    write_metrics(metrics_path, metrics)
+    with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
+        with tmp_plot.open("w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(["seed", "epoch", "success_rate"])
+            writer.writerows((s, ep, rate) for s, rows in per_run.items() for ep, rate in rows)
+        write_metrics(tmp_metrics, metrics)
     print(
         f"evaluate {name}: success {metrics['success_rate_max']:.1f}% (max over checkpoints), "
         f"{metrics['success_rate_last']:.1f}% (last checkpoint) -> {metrics_path}"

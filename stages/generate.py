@@ -14,12 +14,15 @@ from tqdm import tqdm
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.generation import GenerationConfig, SourceDemos, reachable_scenes
+from mimicgen_pipe.generation import Attempt, GenerationConfig, SourceDemos, reachable_scenes
+from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import generation_metrics, write_metrics
-from mimicgen_pipe.params import as_dict
+from mimicgen_pipe.outputs import claim, output_set, run_id, store_digest
+from mimicgen_pipe.params import data_params
 from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.runner import AttemptJob, attempt_seed, run_attempts
 from mimicgen_pipe.store import EpisodeStore, read_store, write_store
+from mimicgen_pipe.taskspec import TaskSpec
 from stages import add_selection_arguments, stage_params
 
 
@@ -61,6 +64,24 @@ def source_demos(store: EpisodeStore, objects: tuple[str, ...]) -> SourceDemos:
     )
 
 
+def episode_fields(attempts: list[Attempt], spec: TaskSpec) -> dict[str, np.ndarray]:
+    """meta/episodes of a generated (or failed) store, shaped also when it has none."""
+    n = len(attempts)
+    return {
+        "seed": np.asarray([a.seed for a in attempts], np.int64),
+        "success": np.asarray([a.success for a in attempts], bool),
+        "source_demo": np.asarray([a.source_demo for a in attempts], np.int64).reshape(
+            n, len(spec.subtasks)
+        ),
+        "initial_object_poses": np.asarray([a.initial_object_poses for a in attempts]).reshape(
+            n, len(spec.objects), 4, 4
+        ),
+        "initial_state": np.asarray([a.initial_state for a in attempts], np.float32),
+        "failure_reason": np.asarray([a.failed_subtask for a in attempts], np.int64),
+        "ik_failure": np.asarray([a.ik_failed for a in attempts], bool),
+    }
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     g = params.generate
@@ -76,16 +97,14 @@ def run(args: argparse.Namespace) -> None:
     out = Path(args.out or layout.generated_store(params.task, args.variant))
     failed_out = out.with_name(out.name.replace(".zarr", "_failed.zarr"))
     metrics_path = Path(args.metrics or layout.metrics_file("generate", params.task, args.variant))
+    claim(out, failed_out, metrics_path)  # one run per output set; fails at once if taken
     store = read_store(
         parsed_path,
         required=["target_pose", "gripper"] + [f"object_poses/{o}" for o in spec.objects],
         task=params.task,
+        kind="parsed",
+        required_episodes=["subtask_term_index"],
     )
-    if "subtask_term_index" not in store.episodes:
-        raise InputError(
-            f"{parsed_path}: meta/episodes/subtask_term_index missing "
-            "(is this a parsed store? run the parse stage)"
-        )
     pose_noise = pose_noise_level(params.pose_noise.level)
     check_store_noise(store.attrs, pose_noise, params.pose_noise.seed, parsed_path)
     config = GenerationConfig(
@@ -134,6 +153,13 @@ def run(args: argparse.Namespace) -> None:
                 bar.set_postfix(attempts=len(rows), dgr=f"{100 * len(kept) / len(rows):.1f}%")
                 if guarantee and len(kept) == g.num_demos:
                     break
+    except Interrupted as exc:
+        exc.detail = (
+            f"after {len(rows)} attempts ({len(kept)} of {g.num_demos} demos)"
+            if guarantee
+            else f"after {len(rows)} of {g.max_attempts} attempts"
+        )
+        raise
     finally:
         results.close()
         bar.close()
@@ -144,7 +170,15 @@ def run(args: argparse.Namespace) -> None:
             f"{g.max_attempts} attempts (DGR {100 * len(kept) / max(1, len(rows)):.1f}%); "
             "raise max_attempts or check the source demos. Nothing was written."
         )
+    # the same id for the same data-shaping params and input, whatever the worker count, so
+    # that the stores stay byte-identical; readers check that kept, failed and metrics agree
+    run = run_id(
+        {"task": params.task, "variant": args.variant, "backend": params.backend}
+        | data_params(params, "generate"),
+        store_digest(store),
+    )
     attrs = {
+        "run_id": run,
         "task": params.task,
         "variant": args.variant,
         "backend": params.backend,
@@ -154,30 +188,11 @@ def run(args: argparse.Namespace) -> None:
         "control_freq": store.attrs.get("control_freq"),
         "objects": list(spec.objects),
         "subtasks": [s.name for s in spec.subtasks],
-        "params": as_dict(params),
+        "params": data_params(params, "generate"),
     }
     # an attempt stopped at IK before its first step has no steps to keep; it is counted in
     # the metrics only
     failed = [a for a in failed if len(a.steps)]
-    for attempts, path in ((kept, out), (failed, failed_out)):
-        write_store(
-            path,
-            [a.steps for a in attempts],
-            {
-                "seed": np.asarray([a.seed for a in attempts], np.int64),
-                "success": np.asarray([a.success for a in attempts], bool),
-                "source_demo": np.asarray([a.source_demo for a in attempts], np.int64).reshape(
-                    len(attempts), len(spec.subtasks)
-                ),
-                "initial_object_poses": np.asarray(
-                    [a.initial_object_poses for a in attempts]
-                ).reshape(len(attempts), len(spec.objects), 4, 4),
-                "initial_state": np.asarray([a.initial_state for a in attempts], np.float32),
-                "failure_reason": np.asarray([a.failed_subtask for a in attempts], np.int64),
-                "ik_failure": np.asarray([a.ik_failed for a in attempts], bool),
-            },
-            attrs,
-        )
     success = np.array([r[1] for r in rows], bool)
     metrics = generation_metrics(
         success,
@@ -189,7 +204,13 @@ def run(args: argparse.Namespace) -> None:
     metrics.update(
         wall_seconds=wall, steps=int(sum(len(a.steps["actions"]) for a in kept + failed))
     )
-    write_metrics(metrics_path, metrics)
+    # written aside, then renamed failed store, metrics, kept store: a reader that finds the
+    # new kept store finds the rest of its run beside it
+    with output_set(failed_out, metrics_path, out) as (tmp_failed, tmp_metrics, tmp_out):
+        for attempts, path, kind in ((kept, tmp_out, "generated"), (failed, tmp_failed, "failed")):
+            steps = [a.steps for a in attempts]
+            write_store(path, kind, steps, episode_fields(attempts, spec), attrs)
+        write_metrics(tmp_metrics, {"run_id": run, **metrics})
     print(
         f"generate: {metrics['successes']}/{metrics['attempts']} attempts succeeded "
         f"(DGR {metrics['dgr']:.1f}%, {metrics['ik_failures']} IK failures, "

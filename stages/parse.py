@@ -32,13 +32,8 @@ def run(args: argparse.Namespace) -> None:
         src_path,
         required=["actions", "gripper", *pose_keys, *[f"subtask_signals/{s}" for s in signals]],
         task=params.task,
+        kind="source",
     )
-    for key in pose_keys + ["actions"]:
-        bad = ~np.isfinite(store.data[key]).all(axis=-1)
-        if bad.any():
-            step = int(np.argmax(bad))
-            ep = int(np.searchsorted(store.episode_ends, step, side="right"))
-            raise InputError(f"{src_path}: data/{key}: NaN at step {step} (episode {ep})")
     term_index = []
     for i in range(store.n_episodes):
         ep = store.episode(i)
@@ -64,7 +59,7 @@ def run(args: argparse.Namespace) -> None:
         }
         for s in spec.subtasks
     ]
-    write_store(out, steps, episodes, attrs)
+    write_store(out, "parsed", steps, episodes, attrs)
     lengths = np.diff(np.concatenate([[0], store.episode_ends]))
     print(
         f"parse: {store.n_episodes} demos, subtask ends {episodes['subtask_term_index'].tolist()}"

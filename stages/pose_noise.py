@@ -33,12 +33,13 @@ def run(args: argparse.Namespace) -> None:
     parsed_path = Path(args.parsed or layout.parsed_store(params.task))
     out = Path(args.out or layout.pose_noise_store(params.task))
     keys = [f"object_poses/{o}" for o in spec.objects]
-    store = read_store(parsed_path, required=keys, task=params.task)
-    if "subtask_term_index" not in store.episodes:
-        raise InputError(
-            f"{parsed_path}: meta/episodes/subtask_term_index missing "
-            "(is this a parsed store? run the parse stage)"
-        )
+    store = read_store(
+        parsed_path,
+        required=keys,
+        task=params.task,
+        kind="parsed",
+        required_episodes=["subtask_term_index"],
+    )
     if "pose_noise" in store.attrs:
         raise InputError(f"{parsed_path}: already carries pose noise; give the clean parsed store")
     rng = np.random.default_rng(pn.seed)
@@ -55,7 +56,7 @@ def run(args: argparse.Namespace) -> None:
         # keep the store self-consistent: the initial poses are the first observed ones
         episodes["initial_object_poses"] = np.stack([noisy[k][starts] for k in keys], axis=1)
     attrs = {**store.attrs, "pose_noise": store_attrs(pn.level, noise, pn.seed)}
-    write_store(out, steps, episodes, attrs)
+    write_store(out, "parsed", steps, episodes, attrs)
     print(
         f"pose_noise: {store.n_episodes} demos, level {pn.level} ({noise.describe()}, "
         f"seed {pn.seed}) -> {out}"

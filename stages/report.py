@@ -9,17 +9,18 @@ from typing import Any
 
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.outputs import atomic_directory, claim
 from mimicgen_pipe.params import load_params
 from mimicgen_pipe.report import (
     Run,
     build_report,
+    check_run_ids,
     load_paper_results,
     render_html,
     render_markdown,
     transfer_blocks,
     transfer_table,
 )
-from mimicgen_pipe.store import atomic_directory
 from stages import add_selection_arguments, stage_params
 
 
@@ -41,7 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def read_metrics(folder: Path) -> dict[str, dict[str, Any]]:
-    """Every flat metrics JSON directly in ``folder``: file stem -> metrics."""
+    """Every flat metrics JSON directly in ``folder``: file stem -> metrics; InputError when
+    two of them describe different generate runs (see check_run_ids)."""
     out = {}
     for path in sorted(folder.glob("*.json")):
         try:
@@ -51,6 +53,7 @@ def read_metrics(folder: Path) -> dict[str, dict[str, Any]]:
         if not isinstance(value, dict):
             raise InputError(f"{path}: expected a flat JSON object")
         out[path.stem] = value
+    check_run_ids(out, folder)  # generate, coverage and training metrics of one run
     return out
 
 
@@ -59,6 +62,7 @@ def run(args: argparse.Namespace) -> None:
     metrics_dir = Path(args.metrics)
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
     out = Path(args.out or layout.report_dir())
+    claim(out)  # fails at once if another run writes the report
     paper = load_paper_results(args.paper)
     if not metrics_dir.is_dir():
         raise InputError(f"{metrics_dir}: metrics folder not found")

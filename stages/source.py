@@ -14,7 +14,8 @@ from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.generation import replay_actions
 from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.params import as_dict
+from mimicgen_pipe.outputs import claim, output_set
+from mimicgen_pipe.params import data_params
 from stages import add_selection_arguments, stage_params
 
 
@@ -31,8 +32,11 @@ def run(args: argparse.Namespace) -> None:
     envs.check_robot(params.backend, p.robot)
     out = Path(args.out or layout.source_store(params.task))
     metrics_path = Path(args.metrics or layout.metrics_file("source", params.task))
+    claim(out, metrics_path)  # fails at once if another run writes them
     env = envs.make_env(params.backend, params.task, p.robot)
-    with tempfile.TemporaryDirectory(prefix="mimicgen-source-") as tmp:
+    # beside the output, named as its temporaries, so that the next run removes it if this
+    # one is killed before it can
+    with tempfile.TemporaryDirectory(prefix=f".{out.name}.tmp-", dir=out.parent) as tmp:
         print(f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)")
         episodes, demonstrator_failures = envs.source_episodes(
             params.backend, env, p.num_demos, p.seed, p.from_file, Path(tmp)
@@ -53,35 +57,38 @@ def run(args: argparse.Namespace) -> None:
         raise InputError(f"{p.from_file or params.task}: no source demo succeeded when replayed")
     from mimicgen_pipe.store import write_store
 
-    write_store(
-        out,
-        kept,
-        {
-            "seed": np.asarray(seeds, np.int64),
-            "success": np.ones(len(kept), bool),
-            "initial_object_poses": np.stack(init_poses),
-        },
-        {
-            "task": params.task,
-            "variant": "D0",
-            "backend": params.backend,
-            "robot": p.robot,
-            "control_mode": env.control_mode,
-            "control_freq": env.control_freq,
-            "objects": list(spec.objects),
-            "source_file": str(p.from_file or "demonstrator"),
-            "params": as_dict(params),
-        },
-    )
-    write_metrics(
-        metrics_path,
-        {
-            "demos": len(kept),
-            "dropped_planner": int(demonstrator_failures),
-            "dropped_replay": int(replay_failures),
-            "mean_length": float(np.mean([len(s["actions"]) for s in kept])),
-        },
-    )
+    # store and metrics written aside, then renamed together (the store last)
+    with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
+        write_store(
+            tmp_out,
+            "source",
+            kept,
+            {
+                "seed": np.asarray(seeds, np.int64),
+                "success": np.ones(len(kept), bool),
+                "initial_object_poses": np.stack(init_poses),
+            },
+            {
+                "task": params.task,
+                "variant": "D0",
+                "backend": params.backend,
+                "robot": p.robot,
+                "control_mode": env.control_mode,
+                "control_freq": env.control_freq,
+                "objects": list(spec.objects),
+                "source_file": str(p.from_file or "demonstrator"),
+                "params": data_params(params, "source"),
+            },
+        )
+        write_metrics(
+            tmp_metrics,
+            {
+                "demos": len(kept),
+                "dropped_planner": int(demonstrator_failures),
+                "dropped_replay": int(replay_failures),
+                "mean_length": float(np.mean([len(s["actions"]) for s in kept])),
+            },
+        )
     print(
         f"source: {len(kept)} demos -> {out} ({demonstrator_failures} demonstrator and "
         f"{replay_failures} replay failures dropped)"

@@ -14,10 +14,12 @@ from tqdm import tqdm
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.params import as_dict
 from mimicgen_pipe.policy import PolicyConfig
-from mimicgen_pipe.store import atomic_directory, read_store
+from mimicgen_pipe.store import read_store
 from mimicgen_pipe.training import (
     TrainConfig,
     dataset_from_store,
@@ -46,6 +48,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", help="training curve CSV (default: plots/train_<task>_<data>.csv)")
 
 
+def write_curve(path: Path, rows: list[dict]) -> None:
+    """The training curve, one row per (training seed, epoch)."""
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, ["seed", "epoch", "step", "loss", "val_loss", "seconds"])
+        writer.writeheader()
+        writer.writerows(rows)
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     t, prof = params.train, params.train.active
@@ -58,8 +68,14 @@ def run(args: argparse.Namespace) -> None:
     out = Path(args.out or layout.policy_dir(params.task, args.data))
     metrics_path = Path(args.metrics or layout.metrics_file("train", params.task, args.data))
     plot_path = Path(args.plot or layout.plot_file("train", params.task, args.data))
+    claim(out, metrics_path, plot_path)  # fails at once if another run writes them
 
-    store = read_store(store_path, required=["actions"], task=params.task)
+    store = read_store(
+        store_path,
+        required=["actions"],
+        task=params.task,
+        kind="source" if args.data == "source" else "generated",
+    )
     data, dims = dataset_from_store(
         store, t.obs_keys, None if args.data == "source" else t.num_demos
     )
@@ -94,6 +110,8 @@ def run(args: argparse.Namespace) -> None:
         "robot": store.attrs.get("robot"),
         "data": args.data,
         "store": str(store_path),
+        # the generate run whose data this is (none for source demos): the report checks it
+        "data_run_id": store.attrs.get("run_id"),
         "control_mode": store.attrs.get("control_mode"),
         "train_episodes": int(train_data.n_episodes),
         "val_episodes": int(val_data.n_episodes),
@@ -102,9 +120,13 @@ def run(args: argparse.Namespace) -> None:
     if prof.threads:
         torch.set_num_threads(prof.threads)
     rows: list[dict] = []
-    with atomic_directory(out) as tmp:
+    at = {"seed": prof.seeds[0], "epoch": 0}  # how far training got, for an interrupt
+    # checkpoints, curve and metrics are written aside and renamed together, checkpoints last
+    with output_set(plot_path, metrics_path, out) as (tmp_plot, tmp_metrics, tmp):
+        tmp.mkdir()
         for seed in prof.seeds:
             bar = tqdm(total=prof.epochs, desc=f"train {args.data} seed {seed}", unit="epoch")
+            at.update(seed=seed, epoch=0)
 
             def checkpoint(epoch: int, model, seed: int = seed) -> None:
                 path = tmp / f"seed{seed}" / f"epoch{epoch:05d}.pt"
@@ -112,6 +134,7 @@ def run(args: argparse.Namespace) -> None:
                 save_checkpoint(path, model, {**meta, "seed": seed, "epoch": epoch, "step": step})
 
             def progress(epoch: int, row: dict, bar=bar) -> None:
+                at["epoch"] = epoch
                 bar.update(1)
                 bar.set_postfix(loss=f"{row['loss']:.2f}", val=f"{row['val_loss']:.2f}")
 
@@ -119,33 +142,32 @@ def run(args: argparse.Namespace) -> None:
                 history = train_policy(
                     train_data, val_data, policy, config, seed, checkpoint, progress
                 )
+            except Interrupted as exc:
+                exc.detail = f"in training seed {at['seed']} at epoch {at['epoch']}/{prof.epochs}"
+                raise
             finally:
                 bar.close()
             rows += [{"seed": seed, **r} for r in history]
-
-    plot_path.parent.mkdir(parents=True, exist_ok=True)
-    with plot_path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, ["seed", "epoch", "step", "loss", "val_loss", "seconds"])
-        writer.writeheader()
-        writer.writerows(rows)
-    last = [r for r in rows if r["epoch"] == prof.epochs]
-    seconds = sum(r["seconds"] for r in last)
-    steps = prof.epochs * prof.steps_per_epoch * len(prof.seeds)
-    write_metrics(
-        metrics_path,
-        {
-            "profile": t.profile,
-            "seeds": len(prof.seeds),
-            "train_episodes": int(train_data.n_episodes),
-            "val_episodes": int(val_data.n_episodes),
-            "gradient_steps": steps,
-            "final_loss": float(np.mean([r["loss"] for r in last])),
-            "final_val_loss": float(np.mean([r["val_loss"] for r in last])),
-            "wall_seconds": seconds,
-            "seconds_per_1000_steps": 1000 * seconds / steps,
-            "torch_threads": torch.get_num_threads(),
-        },
-    )
+        write_curve(tmp_plot, rows)
+        last = [r for r in rows if r["epoch"] == prof.epochs]
+        seconds = sum(r["seconds"] for r in last)
+        steps = prof.epochs * prof.steps_per_epoch * len(prof.seeds)
+        write_metrics(
+            tmp_metrics,
+            {
+                "profile": t.profile,
+                "seeds": len(prof.seeds),
+                "data_run_id": meta["data_run_id"],
+                "train_episodes": int(train_data.n_episodes),
+                "val_episodes": int(val_data.n_episodes),
+                "gradient_steps": steps,
+                "final_loss": float(np.mean([r["loss"] for r in last])),
+                "final_val_loss": float(np.mean([r["val_loss"] for r in last])),
+                "wall_seconds": seconds,
+                "seconds_per_1000_steps": 1000 * seconds / steps,
+                "torch_threads": torch.get_num_threads(),
+            },
+        )
     print(
         f"train: {len(prof.seeds)} run(s) on {data.n_episodes} episodes of {store_path}, "
         f"{1000 * seconds / steps:.1f} s per 1000 steps -> {out}"

@@ -20,7 +20,10 @@ def outputs(work):
     )
 
 
-def run_bad(work, *args, params="task: stack_cube\n"):
+MINIMAL = "task: stack_cube\nsource: {num_demos: 1}\n"
+
+
+def run_bad(work, *args, params=MINIMAL):
     (work / "params.yaml").write_text(params)
     res = cli(*args, cwd=work, check=False)
     assert res.returncode == 2, res.stderr
@@ -31,7 +34,7 @@ def run_bad(work, *args, params="task: stack_cube\n"):
 
 
 def test_unknown_task(tmp_path):
-    msg = run_bad(tmp_path, "source", params="task: stack_sphere\n")
+    msg = run_bad(tmp_path, "source", params=MINIMAL.replace("stack_cube", "stack_sphere"))
     assert "task 'stack_sphere': unknown" in msg and "stack_cube" in msg
 
 
@@ -93,12 +96,37 @@ def test_parse_rejects_a_nan_pose(tmp_path):
             "subtask_signals/grasp_cubeA": grasp,
         }
     ]
-    write_store(tmp_path / "input" / "src.zarr", steps, {}, {"task": "stack_cube"})
+    write_store(tmp_path / "input" / "src.zarr", "source", steps, {}, {"task": "stack_cube"})
     msg = run_bad(tmp_path, "parse", "--source", "input/src.zarr")
-    assert "data/object_poses/cubeA: NaN at step 7 (episode 0)" in msg
+    assert "data/object_poses/cubeA: NaN or infinite value at episode 0, step 7" in msg
 
 
 @pytest.mark.parametrize("stage", ["source", "parse", "generate"])
 def test_every_stage_has_help(tmp_path, stage):
     res = cli(stage, "--help", cwd=tmp_path)
     assert "--params" in res.stdout
+
+
+@pytest.mark.parametrize(
+    "params,expected",
+    [
+        ("", "params.yaml: empty; expected the pipeline's params"),
+        ("# nothing but a comment\n", "params.yaml: empty"),
+        ("task: stack_cube\nbackend: maniskill\n", "params.yaml: no stage sections"),
+        (MINIMAL + "train: {obs_keys: []}\n", "train.obs_keys: expected at least one entry"),
+        (
+            MINIMAL + "generate: {variants: [D0, D7]}\n",
+            "generate.variants: 'D7' is not a reset variant of stack_cube on maniskill "
+            "(known: D0, D1)",
+        ),
+        (
+            MINIMAL + "transfer: {variants: [D0, D2]}\n",
+            "transfer.variants: 'D2' is not a reset variant of stack on pybullet",
+        ),
+        (MINIMAL + "generate: {variants: [D0, D0]}\n", "generate.variants: expected distinct"),
+    ],
+)
+def test_params_gaps_are_one_clear_error_at_load(tmp_path, params, expected):
+    """Every stage loads params the same way; source stops before recording anything."""
+    msg = run_bad(tmp_path, "source", params=params)
+    assert expected in msg

@@ -59,7 +59,7 @@ def test_store_round_trip_and_atomic_replace(tmp_path):
             }
         )
     path = tmp_path / "s.zarr"
-    write_store(path, eps, {"seed": np.array([1, 2])}, {"task": "t"})
+    write_store(path, "generated", eps, {"seed": np.array([1, 2])}, {"task": "t"})
     s = read_store(path, required=["actions"])
     assert s.episode_ends.tolist() == [3, 8]
     np.testing.assert_array_equal(s.episode(1)["actions"], eps[1]["actions"])
@@ -67,7 +67,9 @@ def test_store_round_trip_and_atomic_replace(tmp_path):
     assert s.attrs["task"] == "t"
     # a failing write leaves the old store in place and no temporary directory behind
     with pytest.raises(KeyError):
-        write_store(path, [{"actions": np.zeros((2, 7))}, {"other": np.zeros(2)}], {}, {})
+        write_store(
+            path, "generated", [{"actions": np.zeros((2, 7))}, {"other": np.zeros(2)}], {}, {}
+        )
     assert read_store(path).n_episodes == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.zarr"]
     with pytest.raises(InputError, match="missing data keys"):

@@ -127,7 +127,9 @@ def store_with_obs(tmp_path, success):
         for _ in success
     ]
     return read_store(
-        write_store(tmp_path / "s.zarr", steps, {"success": np.array(success)}, {"task": "t"})
+        write_store(
+            tmp_path / "s.zarr", "generated", steps, {"success": np.array(success)}, {"task": "t"}
+        )
     )
 
 

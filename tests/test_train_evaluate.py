@@ -117,6 +117,7 @@ def test_train_and_evaluate_refuse_bad_input_before_work(pipeline):
     failed = "data/none_succeeded.zarr"
     write_store(
         pipeline / failed,
+        "generated",
         [gen.episode(i) for i in range(gen.n_episodes)],
         {**gen.episodes, "success": np.zeros(gen.n_episodes, bool)},
         gen.attrs,

@@ -1,0 +1,91 @@
+"""A pool of simulator processes that never outlives the stage that started it.
+
+Both generation (mimicgen_pipe.runner) and policy evaluation (mimicgen_pipe.evaluation) map
+blocks of work over spawned worker processes, results in order. The pool here adds what a
+plain ``multiprocessing.Pool`` lacks for a command a person stops with Ctrl-C or a scheduler
+stops with SIGTERM or SIGKILL:
+
+- workers ignore SIGINT: a Ctrl-C in a terminal signals the whole process group, and the
+  parent alone decides what to do (tear the pool down, print one line);
+- workers die with their parent: on Linux the kernel sends them SIGKILL when it dies
+  (``PR_SET_PDEATHSIG``); elsewhere a thread polls the parent's pid;
+- leaving the iterator early, by an exception or by closing it, terminates the workers
+  (SIGTERM, which they do not catch) and joins them, so that they write nothing more.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import multiprocessing as mp
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+_PR_SET_PDEATHSIG = 1
+PARENT_POLL_SECONDS = 0.5
+
+
+def _die_with_parent(parent: int) -> None:
+    """Make this process exit when ``parent`` does, however the parent ends."""
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0:
+                if os.getppid() != parent:  # it died before prctl took effect
+                    os._exit(1)
+                return
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL_SECONDS)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def _init(parent: int, initializer: Callable[..., None], initargs: tuple) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _die_with_parent(parent)
+    initializer(*initargs)
+
+
+def imap_in_workers(
+    fn: Callable[[T], R],
+    tasks: Iterable[T],
+    workers: int,
+    initializer: Callable[..., None],
+    initargs: tuple[Any, ...] = (),
+) -> Iterator[R]:
+    """``fn`` over ``tasks`` in order: in this process when ``workers`` <= 1 (after
+    ``initializer(*initargs)``), else on that many spawned processes, each initialised once.
+    Close the iterator (or let an exception through it) to stop early: the pool is gone when
+    that returns."""
+    if workers <= 1:
+        initializer(*initargs)
+        yield from map(fn, tasks)
+        return
+    # Workers inherit a signal mask that blocks SIGINT: it would otherwise reach a worker
+    # still importing its modules, before _init ignores it (a traceback). A Ctrl-C meanwhile
+    # stays pending here and is raised, inside the try, when the mask is restored. (A worker
+    # that a SIGTERM here orphans finds its parent gone in _init, and exits.)
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT])
+    pool = None
+    try:
+        pool = mp.get_context("spawn").Pool(
+            workers, initializer=_init, initargs=(os.getpid(), initializer, initargs)
+        )
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        yield from pool.imap(fn, tasks, chunksize=1)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        if pool is not None:
+            pool.terminate()
+            pool.join()

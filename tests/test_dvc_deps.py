@@ -1,0 +1,96 @@
+"""dvc.yaml's code deps cannot drift: every project module a stage's code imports
+(transitively, including imports inside functions) is covered by a declared dep, so that
+editing it re-runs the stage instead of serving stale data."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("mimicgen_pipe", "envs", "stages")
+BACKENDS = ("maniskill", "pybullet")
+
+
+def module_file(name: str) -> Path | None:
+    """The repository file of a project module (package __init__ or module), else None."""
+    if name.split(".")[0] not in PACKAGES:
+        return None
+    base = REPO / Path(*name.split("."))
+    for path in (base / "__init__.py", base.with_suffix(".py")):
+        if path.exists():
+            return path
+    return None
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Project modules ``path`` imports anywhere in its body (``from a import b`` counts
+    both a and a.b, since b may be a submodule)."""
+    out: set[str] = set()
+    package = ".".join(path.relative_to(REPO).with_suffix("").parts[:-1])
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(parent + ([base] if base else []))
+            out.add(base)
+            out.update(f"{base}.{a.name}" for a in node.names)
+    return {m for m in out if module_file(m) is not None}
+
+
+def closure(stage_module: str, backend: str) -> set[Path]:
+    """Files a stage's code runs from: its module, the packages it sits in, and everything
+    they import, following only the chosen back end's package under envs/."""
+    todo = [stage_module, "stages"]
+    seen: set[str] = set()
+    while todo:
+        name = todo.pop()
+        parts = name.split(".")
+        if name in seen or (
+            len(parts) > 1 and parts[0] == "envs" and parts[1] in BACKENDS and parts[1] != backend
+        ):
+            continue
+        seen.add(name)
+        # a submodule import runs its packages' __init__ first
+        todo += [".".join(parts[:i]) for i in range(1, len(parts))]
+        todo += imported_modules(module_file(name))
+    return {module_file(m).relative_to(REPO) for m in seen}
+
+
+def stages() -> list[tuple[str, dict]]:
+    doc = yaml.safe_load((REPO / "dvc.yaml").read_text())
+    return list(doc["stages"].items())
+
+
+def backend_of(stage: dict) -> str:
+    """The back end a stage runs on: transfer.backend where its command says so, else the
+    main pipeline's."""
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    cmd = stage["cmd"]
+    return params["transfer"]["backend"] if "${transfer.backend}" in cmd else params["backend"]
+
+
+@pytest.mark.parametrize("name,stage", stages(), ids=[n for n, _ in stages()])
+def test_stage_code_deps_cover_every_module_it_imports(name, stage):
+    words = stage["cmd"].split()
+    assert words[0] == "mimicgen-pipe", f"{name}: cmd does not run mimicgen-pipe"
+    deps = [d for d in stage["deps"] if "$" not in d]
+    files = closure(f"stages.{words[1]}", backend_of(stage))
+    uncovered = sorted(
+        str(f) for f in files if not any(f == Path(d) or Path(d) in f.parents for d in deps)
+    )
+    assert not uncovered, f"dvc.yaml stage {name}: add to deps: {uncovered}"
+
+
+def test_the_closure_follows_lazy_imports():
+    """The check sees an import inside a function (envs picks its back end lazily)."""
+    files = closure("stages.generate", "maniskill")
+    assert Path("envs/maniskill/env.py") in files
+    assert not any(str(f).startswith("envs/pybullet") for f in files)
+    assert Path("mimicgen_pipe/store.py") in files
