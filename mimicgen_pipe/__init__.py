@@ -1,0 +1,1 @@
+"""mimicgen-pipe: MimicGen data generation as a pipeline of DVC stages (see README.md)."""
