@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.taskspec import TaskSpec
@@ -52,9 +53,16 @@ def check_robot(backend: str, robot: str) -> None:
 
 
 def make_env(backend: str, task: str, robot: str = "panda"):
-    """A fresh env of ``task`` on ``backend`` that implements the env protocol."""
+    """A fresh env of ``task`` on ``backend`` that implements the env protocol.
+
+    It also puts numpy's BLAS on one thread for the rest of the process: OpenBLAS splits some
+    products across its threads, whose number defaults to the machine's core count (Ray
+    workers: 1), and the order of the partial sums changes the last bits, which a simulated
+    episode amplifies into other demos. On one thread, the data do not depend on the
+    machine's core count or the executor."""
     task_spec(backend, task)
     check_robot(backend, robot)
+    threadpool_limits(1, user_api="blas")
     return _module(backend).make_env(task, robot)
 
 
