@@ -10,9 +10,9 @@ from typing import Protocol
 
 import numpy as np
 
+from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.generation import Env
 from mimicgen_pipe.observations import low_dim_observation
-from mimicgen_pipe.workers import imap_in_workers
 
 EVAL_SEED_BASE = 1 << 30  # generation and source seeds are < 2**30 (runner.attempt_seed)
 EPISODES_PER_BLOCK = 10
@@ -84,7 +84,7 @@ def _run_block(task: tuple[str, list[int]]) -> tuple[str, list[Rollout]]:
 
 
 def run_evaluation(
-    job: EvalJob, policies: Sequence[str], seeds: Sequence[int], workers: int
+    job: EvalJob, policies: Sequence[str], seeds: Sequence[int], executor: Executor
 ) -> Iterator[tuple[str, list[Rollout]]]:
     """Roll out every policy (by name) from every seed; yields (policy, rollouts of one
     block) as blocks finish, in order."""
@@ -93,7 +93,7 @@ def run_evaluation(
         for name in policies
         for i in range(0, len(seeds), EPISODES_PER_BLOCK)
     ]
-    results = imap_in_workers(_run_block, tasks, workers, _init_worker, (job,))
+    results = map_blocks(_run_block, tasks, executor, _init_worker, (job,))
     try:
         yield from results
     finally:

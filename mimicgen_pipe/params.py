@@ -18,6 +18,7 @@ from typing import Any, Literal
 import yaml
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.pose_noise import level_error
 
 
@@ -37,7 +38,9 @@ class SourceParams:
 class GenerateParams:
     """Generation knobs (paper M.6 defaults). mode "guarantee" runs until num_demos
     successes (failing loudly after max_attempts); "fixed_attempts" runs exactly
-    max_attempts attempts. workers: simulator processes (spawn)."""
+    max_attempts attempts. executor: where attempts run, ``local`` (a pool of ``workers``
+    simulator processes here) or ``ray`` (Ray tasks; see RayParams). Neither changes the
+    data."""
 
     variants: list[str] = field(default_factory=lambda: ["D0", "D1"])
     num_demos: int = 1000
@@ -51,6 +54,7 @@ class GenerateParams:
     per_subtask: bool = False
     seed: int = 0
     workers: int = 2
+    executor: Literal["local", "ray"] = "local"
     robot: str = "panda"
 
 
@@ -132,11 +136,21 @@ class TrainParams:
 @dataclass(frozen=True)
 class EvaluateParams:
     """episodes: rollouts per checkpoint. seed: evaluation seed stream (reset seeds are
-    disjoint from generation's whatever its value). workers: simulator processes."""
+    disjoint from generation's whatever its value). workers, executor: as for generate."""
 
     episodes: int = 50
     seed: int = 0
     workers: int = 2
+    executor: Literal["local", "ray"] = "local"
+
+
+@dataclass(frozen=True)
+class RayParams:
+    """address: the Ray cluster that stages with ``executor: ray`` run on (``auto``,
+    ``host:port`` or ``ray://host:port``); null: the ``RAY_ADDRESS`` environment variable
+    when set, else a Ray started on this machine with the stage's ``workers`` CPUs."""
+
+    address: str | None = None
 
 
 @dataclass(frozen=True)
@@ -167,6 +181,7 @@ class Params:
     train: TrainParams = field(default_factory=TrainParams)
     evaluate: EvaluateParams = field(default_factory=EvaluateParams)
     transfer: TransferParams = field(default_factory=TransferParams)
+    ray: RayParams = field(default_factory=RayParams)
 
 
 _RANGES: dict[str, tuple[float, float]] = {
@@ -333,7 +348,13 @@ def as_dict(params: Any) -> dict[str, Any]:
 
 # Keys that cannot change a stage's data (process counts), left out of what stores record and
 # of the params dvc.yaml declares for the stage, so that changing them re-runs nothing.
-_NOT_DATA = {"generate": ("workers", "variants")}
+_NOT_DATA = {"generate": ("workers", "executor", "variants")}
+
+
+def stage_executor(params: Params, stage: Literal["generate", "evaluate"]) -> Executor:
+    """Where a stage's blocks run: its ``executor`` and ``workers`` keys, and ``ray``."""
+    section = params.generate if stage == "generate" else params.evaluate
+    return Executor(section.executor, section.workers, params.ray.address)
 
 
 def data_params(params: Params, stage: Literal["source", "generate"]) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""Running many generation attempts: in-process or over a pool of simulator processes.
+"""Running many generation attempts, on any executor (mimicgen_pipe.executors).
 
 Every attempt's seed is derived from (stage seed, variant, attempt index), and results are
 consumed in attempt order. A simulator carries history from one episode to the next (PhysX
@@ -15,9 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.generation import Attempt, Env, GenerationConfig, SourceDemos, run_attempt
+from mimicgen_pipe.resume import WorkDir
 from mimicgen_pipe.taskspec import TaskSpec
-from mimicgen_pipe.workers import imap_in_workers
 
 
 def attempt_seed(seed: int, variant: str, attempt: int) -> int:
@@ -62,14 +63,19 @@ def _run_block(seeds: list[int]) -> list[tuple[int, Attempt, float]]:
     return out
 
 
+def attempt_blocks(seeds: list[int]) -> list[list[int]]:
+    """The fixed blocks the attempts run in (a resumed run must cut them the same way)."""
+    return [seeds[i : i + ATTEMPTS_PER_BLOCK] for i in range(0, len(seeds), ATTEMPTS_PER_BLOCK)]
+
+
 def run_attempts(
-    job: AttemptJob, seeds: list[int], workers: int
+    job: AttemptJob, seeds: list[int], executor: Executor, work: WorkDir | None = None
 ) -> Iterator[tuple[int, Attempt, float]]:
-    """Yield (seed, attempt, seconds) in the order of ``seeds``. Stop consuming to stop early:
-    the pool is torn down when the generator is closed (or an exception, such as an
+    """Yield (seed, attempt, seconds) in the order of ``seeds``; with ``work``, finished
+    blocks are saved there and those an earlier run saved are reused. Stop consuming to stop
+    early: the workers are gone when the generator is closed (or an exception, such as an
     interrupt, goes through it)."""
-    blocks = [seeds[i : i + ATTEMPTS_PER_BLOCK] for i in range(0, len(seeds), ATTEMPTS_PER_BLOCK)]
-    results = imap_in_workers(_run_block, blocks, workers, _init_worker, (job,))
+    results = map_blocks(_run_block, attempt_blocks(seeds), executor, _init_worker, (job,), work)
     try:
         for block in results:
             yield from block

@@ -19,6 +19,7 @@ from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import evaluation_metrics, write_metrics
 from mimicgen_pipe.observations import observation_dims
 from mimicgen_pipe.outputs import check_same_run, claim, output_set
+from mimicgen_pipe.params import stage_executor
 from mimicgen_pipe.training import load_checkpoint, load_rollout_policy
 from stages import add_selection_arguments, stage_params
 
@@ -96,7 +97,7 @@ def run(args: argparse.Namespace) -> None:
     success: dict[str, list[bool]] = {n: [] for n in names}
     t0 = time.perf_counter()
     bar = tqdm(total=len(names) * e.episodes, desc=f"evaluate {name}", unit="episode")
-    results = run_evaluation(job, names, seeds, e.workers)
+    results = run_evaluation(job, names, seeds, stage_executor(params, "evaluate"))
     try:
         for ckpt, rollouts in results:
             success[ckpt] += [r.success for r in rollouts]
@@ -121,6 +122,7 @@ def run(args: argparse.Namespace) -> None:
         wall_seconds=wall,
         seconds_per_episode=wall / (len(names) * e.episodes),
         workers=e.workers,
+        executor=e.executor,
     )
     with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
         with tmp_plot.open("w", newline="") as f:

@@ -18,9 +18,10 @@ from mimicgen_pipe.generation import Attempt, GenerationConfig, SourceDemos, rea
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import generation_metrics, write_metrics
 from mimicgen_pipe.outputs import claim, output_set, run_id, store_digest
-from mimicgen_pipe.params import data_params
+from mimicgen_pipe.params import data_params, stage_executor
 from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
-from mimicgen_pipe.runner import AttemptJob, attempt_seed, run_attempts
+from mimicgen_pipe.resume import WorkDir, code_digest
+from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, AttemptJob, attempt_seed, run_attempts
 from mimicgen_pipe.store import EpisodeStore, read_store, write_store
 from mimicgen_pipe.taskspec import TaskSpec
 from stages import add_selection_arguments, stage_params
@@ -127,6 +128,19 @@ def run(args: argparse.Namespace) -> None:
             f"none of {WORKSPACE_SCENES} sampled scenes does it have IK solutions for the "
             "source demo's segments. Nothing was generated."
         )
+    # the same id for the same data-shaping params and input, whatever the worker count, so
+    # that the stores stay byte-identical; readers check that kept, failed and metrics agree
+    run = run_id(
+        {"task": params.task, "variant": args.variant, "backend": params.backend}
+        | data_params(params, "generate"),
+        store_digest(store),
+    )
+    # finished blocks of this run go to a work directory beside the output as they come
+    # back; a killed run started again with the same params, input and code resumes there
+    work = WorkDir.open(out, f"{run}/{ATTEMPTS_PER_BLOCK}/{code_digest('mimicgen_pipe', 'envs')}")
+    resumed = len(work.finished())
+    if resumed:
+        print(f"generate: resuming: {resumed} finished blocks of attempts in {work.path}")
     guarantee = g.mode == "guarantee"
     kept, failed, rows = [], [], []
     t0 = time.perf_counter()
@@ -136,7 +150,7 @@ def run(args: argparse.Namespace) -> None:
         desc=f"generate {params.task} {args.variant}",
         unit="demo" if guarantee else "attempt",
     )
-    results = run_attempts(job, seeds, g.workers)
+    results = run_attempts(job, seeds, stage_executor(params, "generate"), work)
     try:
         if not (guarantee and g.num_demos == 0):
             for seed, attempt, seconds in results:
@@ -158,7 +172,7 @@ def run(args: argparse.Namespace) -> None:
             f"after {len(rows)} attempts ({len(kept)} of {g.num_demos} demos)"
             if guarantee
             else f"after {len(rows)} of {g.max_attempts} attempts"
-        )
+        ) + f"; finished blocks kept in {work.path} (the same command resumes)"
         raise
     finally:
         results.close()
@@ -170,13 +184,6 @@ def run(args: argparse.Namespace) -> None:
             f"{g.max_attempts} attempts (DGR {100 * len(kept) / max(1, len(rows)):.1f}%); "
             "raise max_attempts or check the source demos. Nothing was written."
         )
-    # the same id for the same data-shaping params and input, whatever the worker count, so
-    # that the stores stay byte-identical; readers check that kept, failed and metrics agree
-    run = run_id(
-        {"task": params.task, "variant": args.variant, "backend": params.backend}
-        | data_params(params, "generate"),
-        store_digest(store),
-    )
     attrs = {
         "run_id": run,
         "task": params.task,
@@ -211,6 +218,7 @@ def run(args: argparse.Namespace) -> None:
             steps = [a.steps for a in attempts]
             write_store(path, kind, steps, episode_fields(attempts, spec), attrs)
         write_metrics(tmp_metrics, {"run_id": run, **metrics})
+    work.remove()
     print(
         f"generate: {metrics['successes']}/{metrics['attempts']} attempts succeeded "
         f"(DGR {metrics['dgr']:.1f}%, {metrics['ik_failures']} IK failures, "

@@ -14,9 +14,11 @@ os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
 REPO = Path(__file__).resolve().parents[1]
 
 
-def cli(*args: str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
-    """Run ``mimicgen-pipe`` as a user would, in ``cwd``."""
-    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONWARNINGS="ignore")
+def cli(
+    *args: str, cwd: Path, check: bool = True, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess:
+    """Run ``mimicgen-pipe`` as a user would, in ``cwd`` (``env``: extra variables)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONWARNINGS="ignore") | (env or {})
     res = subprocess.run(
         [sys.executable, "-m", "mimicgen_pipe.cli", *args],
         cwd=cwd,

@@ -124,6 +124,11 @@ def test_every_stage_has_help(tmp_path, stage):
             "transfer.variants: 'D2' is not a reset variant of stack on pybullet",
         ),
         (MINIMAL + "generate: {variants: [D0, D0]}\n", "generate.variants: expected distinct"),
+        (
+            MINIMAL + "evaluate: {executor: dask}\n",
+            "evaluate.executor: expected one of 'local', 'ray', got 'dask'",
+        ),
+        (MINIMAL + "ray: {adress: auto}\n", "ray.adress: unknown key (known: address)"),
     ],
 )
 def test_params_gaps_are_one_clear_error_at_load(tmp_path, params, expected):

@@ -131,9 +131,13 @@ def test_interrupt_stops_generate_with_one_line(work, sig):
     lines = own_lines(err)
     assert len(lines) == 1, lines
     assert lines[0].startswith(f"mimicgen-pipe generate: interrupted ({sig.name}) after ")
-    assert lines[0].endswith(" of 400 attempts; nothing written")
+    assert lines[0].endswith(
+        f" of 400 attempts; finished blocks kept in data/int_{sig.name}/.stack_D0.zarr.work "
+        "(the same command resumes); nothing written"
+    )
     folder = work / out.rsplit("/", 1)[0]
-    assert list(folder.iterdir()) == []  # no store, no temporary, no lock file
+    # no store, no temporary, no lock file: only the finished blocks, for a re-run to resume
+    assert [p.name for p in folder.iterdir()] == [".stack_D0.zarr.work"]
     assert not (work / f"metrics/int_{sig.name}.json").exists()
 
 

@@ -1,9 +1,8 @@
-"""A pool of simulator processes that never outlives the stage that started it.
+"""The ``local`` executor: a pool of simulator processes that never outlives the stage that
+started it.
 
-Both generation (mimicgen_pipe.runner) and policy evaluation (mimicgen_pipe.evaluation) map
-blocks of work over spawned worker processes, results in order. The pool here adds what a
-plain ``multiprocessing.Pool`` lacks for a command a person stops with Ctrl-C or a scheduler
-stops with SIGTERM or SIGKILL:
+The pool here adds what a plain ``multiprocessing.Pool`` lacks for a command a person stops
+with Ctrl-C or a scheduler stops with SIGTERM or SIGKILL:
 
 - workers ignore SIGINT: a Ctrl-C in a terminal signals the whole process group, and the
   parent alone decides what to do (tear the pool down, print one line);
@@ -57,20 +56,29 @@ def _init(parent: int, initializer: Callable[..., None], initargs: tuple) -> Non
     initializer(*initargs)
 
 
-def imap_in_workers(
+def _indexed(item: tuple[Callable[[T], R], int, T]) -> tuple[int, R]:
+    fn, i, task = item
+    return i, fn(task)
+
+
+def imap_unordered(
     fn: Callable[[T], R],
-    tasks: Iterable[T],
+    tasks: Iterable[tuple[int, T]],
     workers: int,
     initializer: Callable[..., None],
     initargs: tuple[Any, ...] = (),
-) -> Iterator[R]:
-    """``fn`` over ``tasks`` in order: in this process when ``workers`` <= 1 (after
-    ``initializer(*initargs)``), else on that many spawned processes, each initialised once.
-    Close the iterator (or let an exception through it) to stop early: the pool is gone when
-    that returns."""
+) -> Iterator[tuple[int, R]]:
+    """(index, ``fn(task)``) for each (index, task), as they finish: in this process, in
+    order, when ``workers`` <= 1 (after ``initializer(*initargs)``), else on that many
+    spawned processes, each initialised once. Close the iterator (or let an exception
+    through it) to stop early: the pool is gone when that returns."""
+    tasks = list(tasks)
+    if not tasks:
+        return
     if workers <= 1:
         initializer(*initargs)
-        yield from map(fn, tasks)
+        for i, task in tasks:
+            yield i, fn(task)
         return
     # Workers inherit a signal mask that blocks SIGINT: it would otherwise reach a worker
     # still importing its modules, before _init ignores it (a traceback). A Ctrl-C meanwhile
@@ -80,10 +88,12 @@ def imap_in_workers(
     pool = None
     try:
         pool = mp.get_context("spawn").Pool(
-            workers, initializer=_init, initargs=(os.getpid(), initializer, initargs)
+            min(workers, len(tasks)),
+            initializer=_init,
+            initargs=(os.getpid(), initializer, initargs),
         )
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-        yield from pool.imap(fn, tasks, chunksize=1)
+        yield from pool.imap_unordered(_indexed, [(fn, i, t) for i, t in tasks], chunksize=1)
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
         if pool is not None:

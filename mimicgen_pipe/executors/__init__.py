@@ -1,0 +1,93 @@
+"""Executors: one place that maps blocks of work (generation attempts, evaluation rollouts)
+to their results.
+
+``local`` runs the blocks on a pool of spawned processes on this machine
+(:mod:`.local`); ``ray`` runs the same worker function as Ray tasks on a cluster
+(:mod:`.ray`). Either way :func:`map_blocks` yields the results in task order, to the driver
+alone, which writes every output. A block's result depends only on the block (each one runs
+on a freshly rebuilt scene from its own seeds), so the bytes written are the same whichever
+executor and however many workers ran it.
+
+With a :class:`~mimicgen_pipe.resume.WorkDir`, every finished block is saved there as it
+comes back (in whatever order), and blocks that an earlier, killed run of the same work
+finished are read back instead of run again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar
+
+from mimicgen_pipe.resume import WorkDir
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+EXECUTORS = ("local", "ray")
+
+
+@dataclass(frozen=True)
+class Executor:
+    """kind: ``local`` (process pool here) or ``ray``. workers: local processes, or for Ray
+    the CPUs of the local Ray instance it starts when no cluster address is given (on a
+    cluster every CPU it offers is used). address: a Ray cluster (``auto``, ``host:port`` or
+    ``ray://host:port``); None uses ``RAY_ADDRESS`` when set, else starts a local Ray."""
+
+    kind: Literal["local", "ray"] = "local"
+    workers: int = 1
+    address: str | None = None
+
+
+def map_blocks(
+    fn: Callable[[T], R],
+    tasks: Sequence[T],
+    executor: Executor,
+    initializer: Callable[..., None],
+    initargs: tuple[Any, ...] = (),
+    work: WorkDir | None = None,
+) -> Iterator[R]:
+    """``fn`` over ``tasks``, results in task order. Every worker calls
+    ``initializer(*initargs)`` once before its first block (to build its simulator). ``fn``
+    and ``initializer`` must be module-level functions (they are sent by reference).
+
+    Close the iterator (or let an exception through it) to stop early: the workers are gone
+    when that returns. Blocks that finished are in ``work`` by then."""
+    done = work.finished() if work is not None else set()
+    todo = [(i, t) for i, t in enumerate(tasks) if i not in done]
+    results = _unordered(executor, fn, todo, initializer, initargs)
+    waiting: dict[int, R] = {}
+    try:
+        for i in range(len(tasks)):
+            while i not in waiting and i not in done:
+                j, result = next(results)
+                if work is not None:
+                    work.save(j, result)
+                waiting[j] = result
+            if i in waiting:
+                yield waiting.pop(i)
+            else:
+                assert work is not None
+                yield work.load(i)
+    finally:
+        results.close()
+
+
+def _unordered(
+    executor: Executor,
+    fn: Callable[[T], R],
+    tasks: list[tuple[int, T]],
+    initializer: Callable[..., None],
+    initargs: tuple[Any, ...],
+) -> Iterator[tuple[int, R]]:
+    if executor.kind == "local":
+        from mimicgen_pipe.executors import local
+
+        return local.imap_unordered(fn, tasks, executor.workers, initializer, initargs)
+    if executor.kind == "ray":
+        from mimicgen_pipe.executors import ray
+
+        return ray.imap_unordered(
+            fn, tasks, executor.workers, initializer, initargs, executor.address
+        )
+    raise ValueError(f"executor {executor.kind!r}: expected one of {EXECUTORS}")
