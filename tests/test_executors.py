@@ -258,3 +258,44 @@ def test_a_ray_cluster_losing_a_worker_still_writes_the_same_stores(work):
         same_stores(work, "cluster")
     finally:
         cluster.shutdown()
+
+
+def ray_processes() -> set[int]:
+    """Pids of Ray's own processes (services and workers) on this machine."""
+    pids = set()
+    for d in Path("/proc").iterdir():
+        try:
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, ValueError):
+            continue
+        if cmd.startswith("ray::") or "raylet" in cmd or "gcs_server" in cmd:
+            pids.add(int(d.name))
+    return pids
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_an_interrupted_ray_run_ends_in_one_line_and_stops_its_ray(work, sig):
+    """Ctrl-C (to the process group) or SIGTERM while the local Ray it started runs blocks:
+    one line, exit 128+sig, and no Ray process of its own left behind."""
+    before = ray_processes()
+    (work / f"ray_{sig.name}.yaml").write_text(PARAMS + "generate: {workers: 2, executor: ray}\n")
+    proc = start(work, "generate", "--params", f"ray_{sig.name}.yaml", "--variant", "D0",
+                 "--parsed", "data/parsed/stack.zarr", "--attempts", "400", "--out",
+                 f"data/ray_{sig.name}/stack_D0.zarr", "--metrics", "metrics/r.json")  # fmt: skip
+    t0 = time.monotonic()
+    while not any(p not in before for p in ray_processes() if alive(p)):
+        assert proc.poll() is None and time.monotonic() - t0 < 120
+        time.sleep(0.1)
+    time.sleep(3.0)
+    if sig == signal.SIGINT:
+        os.killpg(proc.pid, sig)
+    else:
+        os.kill(proc.pid, sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + sig, err[-3000:]
+    lines = own_lines(err)
+    assert len(lines) == 1 and "Traceback" not in err, lines
+    assert lines[0].startswith(f"mimicgen-pipe generate: interrupted ({sig.name}) after ")
+    time.sleep(2.0)
+    assert {p for p in ray_processes() - before if alive(p)} == set()

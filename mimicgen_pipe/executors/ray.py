@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import logging
 import os
-import signal
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
+
+from mimicgen_pipe.interrupts import deferred
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -25,6 +26,7 @@ R = TypeVar("R")
 RETRIES = 3  # a block whose worker or node dies is re-run up to this many times
 OBJECT_STORE_BYTES = 256 * 2**20  # of a local Ray: results of a few blocks in flight
 IN_FLIGHT_PER_CPU = 2  # blocks submitted ahead, so no CPU waits for the driver
+WAIT_SECONDS = 0.25  # longest wait for a result between two looks at pending signals
 
 _READY: str | None = None  # the run this worker process has built its simulator for
 
@@ -46,15 +48,16 @@ def _package_dir(name: str) -> str:
 
 
 def _connect(workers: int, address: str | None) -> bool:
-    """Connect the driver to Ray; True when it started a local Ray (to stop at the end)."""
+    """Connect the driver to Ray; True when this call connected it (to disconnect at the end,
+    which stops a Ray it started here)."""
     import ray
 
     if ray.is_initialized():  # the caller's own connection (tests, notebooks)
         return False
     address = address or os.environ.get("RAY_ADDRESS") or None
-    # ray.init installs its own SIGTERM handler; the stage's (one line, exit 143) stays
-    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    kwargs: dict[str, Any] = {"logging_level": logging.WARNING, "log_to_driver": False}
+    # ERROR: Ray's start-up warnings (e.g. that token authentication is on) would add lines
+    # to every stage's output; a failing block still raises its error in the driver
+    kwargs: dict[str, Any] = {"logging_level": logging.ERROR, "log_to_driver": False}
     if address is None:
         kwargs |= {
             "num_cpus": workers,
@@ -68,12 +71,17 @@ def _connect(workers: int, address: str | None) -> bool:
         # the cluster's workers run the driver's own code of this package and the back ends
         # (Ray ships it to every node), so that an older install there cannot change a block
         kwargs["runtime_env"] = {"py_modules": [_package_dir(p) for p in ("mimicgen_pipe", "envs")]}
+    # ray.init replaces the SIGTERM handler with one that exits at once, which during its
+    # start-up would orphan the services it has started; the stage's handler stays, holding
+    # the signal back (the caller defers) until Ray is up and can be shut down in order
+    from ray._private import utils as ray_utils  # the pinned release's own hook
+
+    own = ray_utils.set_sigterm_handler
+    ray_utils.set_sigterm_handler = lambda handler: None
     try:
         ray.init(address=address, **kwargs)
     finally:
-        for s, h in handlers.items():
-            if h is not None:
-                signal.signal(s, h)
+        ray_utils.set_sigterm_handler = own
     return True
 
 
@@ -91,29 +99,39 @@ def imap_unordered(
         return
     import ray
 
-    started = _connect(workers, address)
+    # Ray's calls run C++ code that a Python exception raised inside by the stage's signal
+    # handler leaves in a broken state: signals are held back during each call and raised
+    # between them (waits are short, so a Ctrl-C still stops the stage within a second)
+    started = False
     pending: dict[Any, int] = {}
     try:
-        remote = ray.remote(num_cpus=1, max_retries=RETRIES)(_run)
-        setup = ray.put((uuid.uuid4().hex, initializer, initargs))
-        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        with deferred():
+            started = _connect(workers, address)
+            remote = ray.remote(num_cpus=1, max_retries=RETRIES)(_run)
+            setup = ray.put((uuid.uuid4().hex, initializer, initargs))
+            cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
         queue = iter(tasks)
         while True:
-            for i, task in queue:
-                pending[remote.remote(setup, fn, task)] = i
-                if len(pending) >= IN_FLIGHT_PER_CPU * cpus:
-                    break
-            if not pending:
-                return
-            [ref], _ = ray.wait(list(pending), num_returns=1)
-            i = pending.pop(ref)
-            try:
-                result = ray.get(ref)
-            except ray.exceptions.RayTaskError as err:  # the worker's own exception
-                raise err.as_instanceof_cause() from None
+            with deferred():
+                for i, task in queue:
+                    pending[remote.remote(setup, fn, task)] = i
+                    if len(pending) >= IN_FLIGHT_PER_CPU * cpus:
+                        break
+                if not pending:
+                    return
+                ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_SECONDS)
+                if not ready:
+                    continue
+                i = pending.pop(ready[0])
+                try:
+                    result = ray.get(ready[0])
+                except ray.exceptions.RayTaskError as err:  # the worker's own exception
+                    raise err.as_instanceof_cause() from None
             yield i, result
     finally:
-        for ref in pending:
-            ray.cancel(ref, force=True)
-        if started:
-            ray.shutdown()
+        with deferred():
+            if started:
+                ray.shutdown()  # ends this driver's job: Ray stops its unfinished tasks
+            else:
+                for ref in pending:
+                    ray.cancel(ref)
