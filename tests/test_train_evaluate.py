@@ -164,3 +164,16 @@ def test_train_and_evaluate_refuse_bad_input_before_work(pipeline):
     )
     assert res.returncode == 2 and "observation layout" in res.stderr and "cubeA_pos" in res.stderr
     assert not (pipeline / "m.json").exists()
+
+    # the same evaluation as Ray tasks on a local Ray: the same success per checkpoint
+    (pipeline / "tiny_ray.yaml").write_text(
+        TINY.replace(
+            "evaluate: {episodes: 2, workers: 1}",
+            "evaluate: {episodes: 2, workers: 2, executor: ray}",
+        )
+    )
+    cli("evaluate", "--params", "tiny_ray.yaml", "--data", "D1", "--variant", "D1",
+        "--metrics", "metrics/ray.json", "--plot", "plots/ray.csv", cwd=pipeline)  # fmt: skip
+    assert (pipeline / "plots/ray.csv").read_text() == (
+        pipeline / "plots/evaluate_stack_cube_D1_on_D1.csv"
+    ).read_text()
