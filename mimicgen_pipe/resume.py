@@ -50,10 +50,12 @@ def code_digest(*packages: str) -> str:
 
 @dataclass(frozen=True)
 class WorkDir:
-    """The finished blocks of the run whose key is ``key``, in ``path``."""
+    """The finished blocks of the run whose key is ``key``, in ``path``; ``resumed``: those
+    that earlier runs had saved when it was opened (checked)."""
 
     path: Path
     key: str
+    resumed: frozenset[int] = frozenset()
 
     @classmethod
     def open(cls, output: str | os.PathLike, key: str) -> WorkDir:
@@ -69,7 +71,8 @@ class WorkDir:
             tmp.mkdir(parents=True)
             (tmp / "key").write_text(key)
             os.replace(tmp, path)
-        return cls(path, key)
+        work = cls(path, key)
+        return cls(path, key, frozenset(work.finished()))
 
     def _file(self, index: int) -> Path:
         return self.path / f"block-{index:06d}.pkl"

@@ -138,9 +138,8 @@ def run(args: argparse.Namespace) -> None:
     # finished blocks of this run go to a work directory beside the output as they come
     # back; a killed run started again with the same params, input and code resumes there
     work = WorkDir.open(out, f"{run}/{ATTEMPTS_PER_BLOCK}/{code_digest('mimicgen_pipe', 'envs')}")
-    resumed = len(work.finished())
-    if resumed:
-        print(f"generate: resuming: {resumed} finished blocks of attempts in {work.path}")
+    if work.resumed:
+        print(f"generate: resuming: {len(work.resumed)} finished blocks of attempts in {work.path}")
     guarantee = g.mode == "guarantee"
     kept, failed, rows = [], [], []
     t0 = time.perf_counter()

@@ -53,7 +53,7 @@ def map_blocks(
 
     Close the iterator (or let an exception through it) to stop early: the workers are gone
     when that returns. Blocks that finished are in ``work`` by then."""
-    done = work.finished() if work is not None else set()
+    done = work.resumed if work is not None else frozenset()
     todo = [(i, t) for i, t in enumerate(tasks) if i not in done]
     results = _unordered(executor, fn, todo, initializer, initargs)
     waiting: dict[int, R] = {}
