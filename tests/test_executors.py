@@ -8,7 +8,6 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -16,8 +15,8 @@ import pytest
 
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.resume import WorkDir, code_digest, work_dir_of
-from tests.conftest import REPO, cli
-from tests.test_interrupts_and_outputs import alive, own_lines
+from tests.conftest import cli
+from tests.test_interrupts_and_outputs import alive, children, own_lines, start
 from tests.test_store_integrity import tree_digest
 
 # ---- map_blocks and work directories (no simulator) ----
@@ -142,13 +141,6 @@ def test_local_two_workers_and_ray_write_the_same_stores(work):
     assert not work_dir_of(work / "data/ray2/stack_D0.zarr").exists()  # removed when done
 
 
-def start(work: Path, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONWARNINGS="ignore") | (env or {})
-    return subprocess.Popen([sys.executable, "-m", "mimicgen_pipe.cli", *args], cwd=work,
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)  # fmt: skip
-
-
 @pytest.mark.sim
 def test_a_killed_run_resumes_from_its_finished_blocks(work):
     """SIGKILL a real generate once a block is saved; the same command again reuses the
@@ -205,18 +197,7 @@ def test_changed_params_do_not_reuse_the_blocks_of_another_run(work):
 
 def ray_workers_of(raylet_pid: int) -> list[int]:
     """Ray worker processes a raylet started that are running one of our blocks."""
-    pids = []
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            stat = (d / "stat").read_text().rsplit(")", 1)[1].split()
-            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except (OSError, IndexError):
-            continue
-        if int(stat[1]) == raylet_pid and cmd.startswith("ray::_run"):
-            pids.append(int(d.name))
-    return pids
+    return [p for p, cmd in children(raylet_pid).items() if cmd.startswith("ray::_run")]
 
 
 @pytest.mark.sim
