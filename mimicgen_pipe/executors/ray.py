@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -82,6 +83,11 @@ def _connect(workers: int, address: str | None) -> bool:
         ray.init(address=address, **kwargs)
     finally:
         ray_utils.set_sigterm_handler = own
+    # Ray's C++ core also puts a crash reporter in front of SIGTERM that prints a stack dump
+    # before passing the signal on; a SIGTERM is a request to stop, not a crash, so the
+    # stage's own handler is put back (the reporter stays on SIGSEGV, SIGABRT and the like)
+    if (handler := signal.getsignal(signal.SIGTERM)) is not None:  # None: set outside Python
+        signal.signal(signal.SIGTERM, handler)
     return True
 
 
