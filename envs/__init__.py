@@ -85,5 +85,23 @@ def source_episodes(
     work_dir: Path,
 ) -> tuple[list[SourceEpisode], int]:
     """Up to ``num_demos`` source demos on ``env`` from the back end's demonstrator (or
-    ``from_file``), and how many the demonstrator dropped as failures."""
+    ``from_file``'s: a robomimic ``.hdf5`` of this back end and task, e.g. one the export
+    stage wrote, or a file format of the back end's own), and how many the demonstrator
+    dropped as failures."""
+    if from_file is not None and Path(from_file).suffix.lower() in (".hdf5", ".hdf"):
+        return _robomimic_episodes(backend, env, num_demos, from_file), 0
     return _module(backend).source_episodes(env, num_demos, seed, from_file, work_dir)
+
+
+def _robomimic_episodes(backend: str, env, num_demos: int, path: str) -> list[SourceEpisode]:
+    from mimicgen_pipe.exporters import robomimic
+
+    demos = robomimic.read(path, backend, env.spec.name)[:num_demos]
+    width = env.get_state().shape[-1]
+    for demo in demos:
+        if demo.initial_state.shape[-1] != width:
+            raise InputError(
+                f"{path}: data/{demo.name}/states has {demo.initial_state.shape[-1]} values per "
+                f"step, expected {width} (the {backend} {env.spec.name} state with {env.robot})"
+            )
+    return [SourceEpisode(d.seed, d.initial_state, d.actions) for d in demos]

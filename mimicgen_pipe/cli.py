@@ -19,11 +19,13 @@ from mimicgen_pipe.interrupts import Interrupted, as_exceptions
 STAGES = {
     "source": "record source demos on D0 (motion planners or a trajectory file)",
     "parse": "split source demos into object-centric subtask segments",
+    "boundaries": "print candidate subtask ends (gripper events) for manual annotation",
     "pose_noise": "add pose-estimation error to the source demos' object poses",
     "generate": "generate demos for one reset variant (MimicGen)",
     "coverage": "support coverage of a generated dataset's initial scenes, with heat maps",
     "train": "train BC-RNN policies on the source demos or a generated dataset",
     "evaluate": "roll out every checkpoint of a training run in one reset variant",
+    "export": "a generated store as robomimic HDF5, LeRobot and ManiSkill trajectories",
     "report": "report.md and report.html: our metrics beside the paper's, with ablations",
 }
 

@@ -56,3 +56,9 @@ def policy_dir(task: str, data: str) -> Path:
 
 def plot_file(stage: str, task: str, name: str) -> Path:
     return Path("plots") / f"{stage}_{task}_{name}.csv"
+
+
+def export_dir(store_name: str) -> Path:
+    """The export stage's directory for a store (its name without .zarr): one file or
+    folder per format (mimicgen_pipe.exporters.FILE_NAMES)."""
+    return Path("data/export") / store_name

@@ -26,7 +26,8 @@ from mimicgen_pipe.pose_noise import level_error
 class SourceParams:
     """num_demos: successful source demos wanted (D0). seed: first reset seed. robot: the arm
     the source demos are recorded with. from_file: a ManiSkill trajectory .h5
-    (pd_ee_delta_pose) to use instead of the demonstrator; null to use the demonstrator."""
+    (pd_ee_delta_pose), or a robomimic .hdf5 of this back end and task (as the export stage
+    writes), to use instead of the demonstrator; null to use the demonstrator."""
 
     num_demos: int = 10
     seed: int = 0
@@ -145,6 +146,18 @@ class EvaluateParams:
 
 
 @dataclass(frozen=True)
+class ExportParams:
+    """formats: what the export stage writes for each generated store (robomimic HDF5,
+    LeRobot dataset, ManiSkill trajectory files; mimicgen_pipe.exporters). workers: simulator
+    processes replaying episodes for the ManiSkill format."""
+
+    formats: list[Literal["robomimic", "lerobot", "maniskill"]] = field(
+        default_factory=lambda: ["robomimic", "lerobot", "maniskill"]
+    )
+    workers: int = 2
+
+
+@dataclass(frozen=True)
 class RayParams:
     """address: the Ray cluster that stages with ``executor: ray`` run on (``auto``,
     ``host:port`` or ``ray://host:port``); null: the ``RAY_ADDRESS`` environment variable
@@ -181,6 +194,7 @@ class Params:
     train: TrainParams = field(default_factory=TrainParams)
     evaluate: EvaluateParams = field(default_factory=EvaluateParams)
     transfer: TransferParams = field(default_factory=TransferParams)
+    export: ExportParams = field(default_factory=ExportParams)
     ray: RayParams = field(default_factory=RayParams)
 
 
@@ -208,6 +222,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "train.*.threads": (0, 1024),
     "evaluate.episodes": (1, 100_000),
     "evaluate.workers": (1, 256),
+    "export.workers": (1, 256),
     "transfer.attempts": (1, 10_000_000),
 }
 
@@ -227,6 +242,7 @@ _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "generate.variants": _non_empty_unique,
     "train.obs_keys": _non_empty_unique,
     "transfer.tasks": _non_empty_unique,
+    "export.formats": _non_empty_unique,
     "transfer.variants": _non_empty_unique,
     "transfer.robots": _non_empty_unique,
 }

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.taskspec import SubtaskSpec
 
 
@@ -62,3 +65,81 @@ def validate_segments(
                 f"the next boundary {nxt}"
             )
     return None
+
+
+def gripper_events(gripper: np.ndarray) -> list[tuple[int, str]]:
+    """(step, "close" | "open") wherever the gripper action changes sign: the step whose
+    action first closes (< 0) or opens (> 0) the gripper. Candidate subtask ends for a person
+    annotating demos without term signals (a grasp ends at a close, a placement at an open)."""
+    g = np.sign(np.asarray(gripper, np.float64))
+    return [
+        (int(t), "close" if g[t] < 0 else "open")
+        for t in range(1, len(g))
+        if g[t] != 0 and g[t] != g[t - 1]
+    ]
+
+
+def read_boundaries(
+    path: Path, lengths: Sequence[int], subtasks: Sequence[SubtaskSpec]
+) -> np.ndarray:
+    """Manual subtask annotation: (N, M-1) int64, the end step of every subtask but the last
+    for each of the N demos, from a YAML file (``<demo index>: [end, ...]``) or a CSV file
+    (header ``demo,<subtask>,...``, one row per demo). An end is the first step of the next
+    subtask, as split_into_segments returns. Raises InputError naming the file, the demo and
+    the subtask whose end is missing, out of range (1 .. length-1) or out of order."""
+    path = Path(path)
+    names = [s.name for s in subtasks[:-1]]
+    if not path.exists():
+        raise InputError(f"{path}: boundaries file not found")
+    if path.suffix.lower() == ".csv":
+        rows = list(csv.reader(path.read_text().splitlines()))
+        if not rows or rows[0][:1] != ["demo"]:
+            raise InputError(f"{path}: expected a header 'demo,{','.join(names)}'")
+        header = rows[0][1:]
+        if header != names:
+            raise InputError(f"{path}: columns {header}, expected {names} (subtask order)")
+        raw: dict = {}
+        for line, row in enumerate(rows[1:], start=2):
+            try:
+                raw[int(row[0])] = [int(v) for v in row[1:]]
+            except (ValueError, IndexError) as exc:
+                raise InputError(f"{path}: line {line}: expected integers ({row})") from exc
+    else:
+        import yaml
+
+        try:
+            raw = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as exc:
+            raise InputError(f"{path}: not valid YAML ({exc})") from exc
+        if not isinstance(raw, dict):
+            raise InputError(f"{path}: expected a mapping of demo index -> list of ends")
+    out = np.zeros((len(lengths), len(names)), np.int64)
+    for demo, length in enumerate(lengths):
+        ends = raw.get(demo)
+        if ends is None:
+            raise InputError(f"{path}: demo {demo}: no boundaries (every demo needs a line)")
+        ends = ends if isinstance(ends, list) else [ends]
+        if len(ends) < len(names):
+            raise InputError(f"{path}: demo {demo}: no end for subtask {names[len(ends)]!r}")
+        if len(ends) > len(names):
+            raise InputError(
+                f"{path}: demo {demo}: {len(ends)} ends, expected {len(names)} ({names})"
+            )
+        prev = 0
+        for name, end in zip(names, ends, strict=True):
+            if not isinstance(end, int) or not 0 < end < length:
+                raise InputError(
+                    f"{path}: demo {demo}: subtask {name!r} ends at {end!r}, expected a step "
+                    f"in 1..{length - 1} (the demo has {length} steps)"
+                )
+            if end <= prev:
+                raise InputError(
+                    f"{path}: demo {demo}: subtask {name!r} ends at {end}, not after the "
+                    f"previous end {prev}"
+                )
+            prev = end
+        out[demo] = ends
+    extra = sorted(set(raw) - set(range(len(lengths))), key=str)
+    if extra:
+        raise InputError(f"{path}: demos {extra} are not in the store ({len(lengths)} demos)")
+    return out

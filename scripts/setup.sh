@@ -44,9 +44,29 @@ install_venv() {
   # unpinned torch later then finds it satisfied instead of fetching CUDA.
   pip_quiet install "torch==2.13.0"
   pip_quiet install -r requirements.txt
+  # Test-only: robomimic's own dataset class reads our robomimic export in the tests.
+  # 0.3.0 is its last release on PyPI; --no-deps because its dependencies pull a CUDA
+  # torchvision (no CPU build here) and egl_probe (a C++ build); the dataset module needs
+  # only numpy, h5py, torch, tqdm and termcolor (pinned in requirements.txt).
+  pip_quiet install --no-deps "robomimic==0.3.0"
   pip_quiet install --no-deps -e .
+}
+
+install_lerobot_check_venv() {
+  # A second venv, for the tests only: lerobot's own dataset class reads our LeRobot export
+  # there. lerobot 0.4.4 needs numpy >= 2 (our simulators need numpy < 2) and a torch below
+  # ours, so it gets its own packages (tests/lerobot/requirements.txt, exact) and is
+  # installed --no-deps; a stub stands in for torchvision (no CPU build for torch 2.13).
+  local py=${PYTHON:-python3.11}
+  command -v "$py" >/dev/null || py=python3
+  [ -x .venv-lerobot/bin/python ] || "$py" -m venv .venv-lerobot
+  local pip=(.venv-lerobot/bin/pip -q --disable-pip-version-check)
+  "${pip[@]}" install "torch==2.13.0" 2>&1 | { grep -v '^WARNING: Location' || true; }
+  "${pip[@]}" install -r tests/lerobot/requirements.txt 2>&1 | { grep -v '^WARNING: Location' || true; }
+  "${pip[@]}" install --no-deps "lerobot==0.4.4" 2>&1 | { grep -v '^WARNING: Location' || true; }
 }
 
 install_vulkan
 install_venv
+install_lerobot_check_venv
 echo "setup: done (.venv ready; activate with: source .venv/bin/activate)"

@@ -10,7 +10,7 @@ import numpy as np
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.segments import split_into_segments, validate_segments
+from mimicgen_pipe.segments import read_boundaries, split_into_segments, validate_segments
 from mimicgen_pipe.store import read_store, write_store
 from stages import add_selection_arguments, stage_params
 
@@ -19,6 +19,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_selection_arguments(p)
     p.add_argument("--source", help="source store (default: data/source/<task>.zarr)")
     p.add_argument("--out", help="parsed store (default: data/parsed/<task>.zarr)")
+    p.add_argument(
+        "--boundaries",
+        help="manual annotation instead of term signals: a YAML (<demo>: [end, ...]) or CSV "
+        "file with the end step of every subtask but the last, per demo (see "
+        "`mimicgen-pipe boundaries` for candidates)",
+    )
 
 
 def run(args: argparse.Namespace) -> None:
@@ -28,23 +34,31 @@ def run(args: argparse.Namespace) -> None:
     out = Path(args.out or layout.parsed_store(params.task))
     signals = sorted({s.term_signal for s in spec.subtasks if s.term_signal})
     pose_keys = ["eef_pose", "target_pose"] + [f"object_poses/{o}" for o in spec.objects]
+    sig_keys = [] if args.boundaries else [f"subtask_signals/{s}" for s in signals]
     store = read_store(
         src_path,
-        required=["actions", "gripper", *pose_keys, *[f"subtask_signals/{s}" for s in signals]],
+        required=["actions", "gripper", *pose_keys, *sig_keys],
         task=params.task,
         kind="source",
     )
+    lengths = np.diff(np.concatenate([[0], store.episode_ends]))
+    if args.boundaries:
+        annotated = read_boundaries(Path(args.boundaries), lengths.tolist(), spec.subtasks)
     term_index = []
     for i in range(store.n_episodes):
         ep = store.episode(i)
-        sig = {s: ep[f"subtask_signals/{s}"] for s in signals}
-        try:
-            ends = split_into_segments(sig, spec.subtasks)
-        except ValueError as exc:
-            raise InputError(f"{src_path}: episode {i}: {exc}") from exc
+        if args.boundaries:
+            ends, where = annotated[i], f"{args.boundaries}: demo {i}"
+        else:
+            sig = {s: ep[f"subtask_signals/{s}"] for s in signals}
+            try:
+                ends = split_into_segments(sig, spec.subtasks)
+            except ValueError as exc:
+                raise InputError(f"{src_path}: episode {i}: {exc}") from exc
+            where = f"{src_path}: episode {i}"
         why = validate_segments(ends, len(ep["actions"]), spec.subtasks)
         if why:
-            raise InputError(f"{src_path}: episode {i}: {why}")
+            raise InputError(f"{where}: {why}")
         term_index.append(ends)
     steps = [store.episode(i) for i in range(store.n_episodes)]
     episodes = dict(store.episodes)
@@ -60,7 +74,6 @@ def run(args: argparse.Namespace) -> None:
         for s in spec.subtasks
     ]
     write_store(out, "parsed", steps, episodes, attrs)
-    lengths = np.diff(np.concatenate([[0], store.episode_ends]))
     print(
         f"parse: {store.n_episodes} demos, subtask ends {episodes['subtask_term_index'].tolist()}"
         f" of lengths {lengths.tolist()} -> {out}"

@@ -1,0 +1,99 @@
+"""Replaying stored episodes in ManiSkill for its trajectory format (mimicgen_pipe.exporters.
+maniskill): the state after every step, the task's success, and the same motion as
+``pd_joint_pos`` actions.
+
+A ``pd_ee_delta_pose`` step solves IK for the arm and sets the result as the joints' PD drive
+targets; ManiSkill's Panda ``pd_joint_pos`` controller drives the same joints with the same
+stiffness, damping and force limit, and shares the gripper controller. So the pd_joint_pos
+action of a step is the arm's drive targets after it plus the same gripper action, and it
+moves the robot exactly as the delta-pose action did.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from mimicgen_pipe.executors import Executor, map_blocks
+from mimicgen_pipe.exporters.maniskill import Replayed
+
+EPISODES_PER_BLOCK = 8  # each block replays on a freshly rebuilt scene, as generation's
+
+
+@dataclass(frozen=True)
+class ReplayJob:
+    task: str
+    robot: str
+
+
+_ENV = None
+
+
+def _init_worker(job: ReplayJob) -> None:
+    global _ENV
+    import envs
+
+    _ENV = envs.make_env("maniskill", job.task, job.robot)
+
+
+def replay(env, initial_state: np.ndarray, actions: np.ndarray) -> Replayed:
+    """Restore ``initial_state``, execute ``actions`` (T, 7) with ``env.step`` and record the
+    flat state before and after every step (T + 1, S), success after each step (T,) and the
+    equivalent pd_joint_pos actions (T, 8): arm drive targets [rad], gripper action."""
+    env.set_state(initial_state)
+    arm = env.unwrapped.agent.controller.controllers["arm"]
+    states, success, joint = [env.get_state()], [], []
+    for action in np.asarray(actions, np.float32):
+        env.step(action)
+        states.append(env.get_state())
+        success.append(env.is_success())
+        targets = np.asarray(arm._target_qpos, np.float32).reshape(-1)
+        joint.append(np.concatenate([targets, action[-1:]]))
+    return Replayed(np.stack(states), np.asarray(success, bool), np.stack(joint))
+
+
+def _replay_block(block: list[tuple[np.ndarray, np.ndarray]]) -> list[Replayed]:
+    assert _ENV is not None
+    _ENV.rebuild()
+    return [replay(_ENV, state, actions) for state, actions in block]
+
+
+def replay_episodes(
+    episodes: Sequence[tuple[np.ndarray, np.ndarray]], job: ReplayJob, executor: Executor
+) -> Iterator[Replayed]:
+    """Replay (initial state, actions) pairs in order, on ``executor``'s workers."""
+    blocks = [
+        list(episodes[i : i + EPISODES_PER_BLOCK])
+        for i in range(0, len(episodes), EPISODES_PER_BLOCK)
+    ]
+    results = map_blocks(_replay_block, blocks, executor, _init_worker, (job,))
+    try:
+        for block in results:
+            yield from block
+    finally:
+        results.close()
+
+
+def state_layout(env) -> list[tuple[str, str, int]]:
+    """(kind, name, width) of every part of the env's flat state, in its order: kind is
+    "actors" or "articulations", as in ManiSkill's state dict and trajectory files."""
+    state = env.unwrapped.get_state_dict()
+    return [(kind, name, int(v.shape[-1])) for kind in ("actors", "articulations")
+            for name, v in state[kind].items()]  # fmt: skip
+
+
+def env_info(env, max_episode_steps: int) -> dict:
+    """The trajectory file's env_info: ManiSkill's own env id (the scene is the same; our
+    reset variants only set where objects start, and replays start from the stored state)."""
+    return {
+        "env_id": env.task.base_env_id,
+        "max_episode_steps": int(max_episode_steps),
+        "env_kwargs": {
+            "obs_mode": "none",
+            "control_mode": env.control_mode,
+            "sim_backend": "physx_cpu",
+            "robot_uids": env.agent_uids[env.robot],
+        },
+    }

@@ -1,0 +1,120 @@
+"""ManiSkill trajectory files (``.h5`` + ``.json``, as ManiSkill's RecordEpisode writes them),
+which ``python -m mani_skill.trajectory.replay_trajectory`` replays and converts.
+
+The arrays come from a replay of each stored episode in the simulator
+(envs/maniskill/trajectory.py): the store holds the state before each action, a trajectory
+file also the state after the last one. Two files are written: ``trajectory.h5`` with the
+episodes' own ``pd_ee_delta_pose`` actions, and ``trajectory.pd_joint_pos.h5`` with the same
+motion as ``pd_joint_pos`` actions, the control mode ManiSkill's converter starts from (its
+``-c`` converts pd_joint_pos and pd_joint_delta_pos trajectories, not delta-pose ones).
+
+Per episode ``traj_<i>``: ``actions`` (T, A) float32; ``env_states/actors/<name>`` (T+1, 13)
+and ``env_states/articulations/<name>`` (T+1, 13 + 2 dof) float32; ``success``,
+``terminated``, ``truncated`` (T,) bool. The ``.json``: ``env_info`` (env_id, env_kwargs,
+max_episode_steps) and ``episodes`` [{episode_id, episode_seed, reset_kwargs, control_mode,
+elapsed_steps, success}]. Replay them with ``--use-first-env-state`` (the scene comes from
+the stored state; the seed alone gives ManiSkill's D0 scene, not ours).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from mimicgen_pipe.store import EpisodeStore
+
+REQUIRED = ("actions", "env_state")
+JOINT_FILE_SUFFIX = ".pd_joint_pos"
+
+
+@dataclass(frozen=True)
+class Replayed:
+    """One episode replayed in the simulator: states (T + 1, S) float32, flat, before the
+    first and after every action; success (T,) after each action; joint_actions (T, A) the
+    same motion as pd_joint_pos actions (arm drive targets [rad], gripper action)."""
+
+    states: np.ndarray
+    success: np.ndarray
+    joint_actions: np.ndarray
+
+
+def check(store: EpisodeStore, info) -> str | None:
+    from mimicgen_pipe.exporters import missing_keys
+
+    backend = info.env_args.get("env_kwargs", {}).get("backend")
+    if backend != "maniskill":
+        return f"a {backend} store (ManiSkill trajectories need the maniskill back end)"
+    return missing_keys(store, REQUIRED) or (None if store.n_episodes else "no episodes")
+
+
+def _split_states(states: np.ndarray, layout: Sequence[tuple[str, str, int]]) -> dict:
+    out: dict[str, dict[str, np.ndarray]] = {"actors": {}, "articulations": {}}
+    at = 0
+    for kind, name, width in layout:
+        out[kind][name] = states[:, at : at + width]
+        at += width
+    if at != states.shape[1]:
+        raise ValueError(f"state layout covers {at} of {states.shape[1]} values")
+    return out
+
+
+def _write_file(
+    path: Path,
+    store: EpisodeStore,
+    replays: Sequence[Replayed],
+    layout: Sequence[tuple[str, str, int]],
+    env_info: dict,
+    control_mode: str,
+) -> None:
+    seeds = store.episodes.get("seed", np.full(store.n_episodes, -1))
+    episodes = []
+    with h5py.File(path, "w") as f:
+        for i, rep in enumerate(replays):
+            actions = store.episode(i)["actions"] if control_mode != "pd_joint_pos" else None
+            actions = rep.joint_actions if actions is None else actions
+            g = f.create_group(f"traj_{i}")
+            g.create_dataset("actions", data=np.asarray(actions, np.float32))
+            for kind, parts in _split_states(rep.states, layout).items():
+                for name, value in parts.items():
+                    g.create_dataset(f"env_states/{kind}/{name}", data=value)
+            g.create_dataset("success", data=rep.success)
+            g.create_dataset("terminated", data=rep.success)
+            g.create_dataset("truncated", data=np.zeros(len(rep.success), bool))
+            seed = int(seeds[i])
+            episodes.append(
+                {
+                    "episode_id": i,
+                    "episode_seed": seed,
+                    "reset_kwargs": {"seed": seed},
+                    "control_mode": control_mode,
+                    "elapsed_steps": len(rep.success),
+                    "success": bool(rep.success[-1]),
+                }
+            )
+    info = dict(env_info, env_kwargs=dict(env_info["env_kwargs"], control_mode=control_mode))
+    meta = {"env_info": info, "source_type": "mimicgen-pipe", "episodes": episodes}
+    path.with_suffix(".json").write_text(json.dumps(meta, indent=2))
+
+
+def write(
+    store: EpisodeStore,
+    path: Path,
+    info,
+    replays: Sequence[Replayed],
+    layout: Sequence[tuple[str, str, int]],
+    env_info: dict,
+) -> None:
+    """``path`` (.h5, its .json beside it) with the store's own actions, and the
+    pd_joint_pos copy beside it. ``replays``: one per stored episode, in order; ``layout``:
+    (kind, name, width) of the flat state's parts; ``env_info``: the json's env_info."""
+    if len(replays) != store.n_episodes:
+        raise ValueError(f"{len(replays)} replays for {store.n_episodes} episodes")
+    mode = env_info["env_kwargs"]["control_mode"]
+    _write_file(path, store, replays, layout, env_info, mode)
+    joint = path.with_name(path.stem + JOINT_FILE_SUFFIX + path.suffix)
+    _write_file(joint, store, replays, layout, env_info, "pd_joint_pos")

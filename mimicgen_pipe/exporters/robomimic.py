@@ -1,0 +1,166 @@
+"""robomimic HDF5, with MimicGen's per-demo ``datagen_info``; and reading such a file back
+as source demos.
+
+Layout written (robomimic's dataset schema; MimicGen's generated files add datagen_info)::
+
+  data                  attrs: total (steps), env_args (JSON: env_name, type, env_kwargs)
+  data/demo_<i>         attrs: num_samples, seed, success
+      actions           (T, 7) float32, the normalised delta-pose actions
+      states            (T, S) float32, the back end's flat simulator state before each action
+      rewards, dones    (T,) float64 / int64: 1 at the last step of a successful demo / last step
+      obs/<key>         (T, ...) float32, the low-dim observations (mimicgen_pipe.observations)
+      next_obs/<key>    obs/<key> one step on (the last step repeated)
+      datagen_info/eef_pose, target_pose, object_poses/<obj>   (T, 4, 4) float64, world frame
+      datagen_info/subtask_term_signals/<signal>               (T,) int64
+      datagen_info/gripper_action                              (T, 1) float32
+      src_demo_inds     (M,) int64: the source demo each subtask's segment came from
+  mask/train, mask/valid  demo names (bytes): the last valid_fraction of demos are valid
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.store import EpisodeStore
+
+REQUIRED = ("actions", "env_state", "eef_pose", "target_pose", "gripper")
+
+
+def check(store: EpisodeStore, info) -> str | None:
+    from mimicgen_pipe.exporters import missing_keys
+
+    why = missing_keys(store, list(REQUIRED) + [f"obs/{k}" for k in info.obs_keys])
+    if why is None and store.n_episodes == 0:
+        why = "no episodes"
+    return why
+
+
+def split(n: int, valid_fraction: float) -> tuple[list[int], list[int]]:
+    """(train, valid) demo indices: the last round(n * valid_fraction) demos are valid (at
+    least one when the fraction is positive and there are two demos or more)."""
+    n_valid = int(round(n * valid_fraction))
+    if valid_fraction > 0 and n >= 2:
+        n_valid = min(max(n_valid, 1), n - 1)
+    return list(range(n - n_valid)), list(range(n - n_valid, n))
+
+
+def write(store: EpisodeStore, path: Path, info) -> None:
+    objects = [k.removeprefix("object_poses/") for k in store.data if k.startswith("object_poses/")]
+    signals = [k for k in store.data if k.startswith("subtask_signals/")]
+    obs_keys = [k for k in store.data if k.startswith("obs/")]
+    success = store.episodes.get("success", np.ones(store.n_episodes, bool))
+    pose_keys = ["eef_pose", "target_pose"] + [f"object_poses/{o}" for o in objects]
+    matrices = {key: store.poses(key) for key in pose_keys}  # (N_steps, 4, 4) each
+    with h5py.File(path, "w") as f:
+        data = f.create_group("data")
+        for i in range(store.n_episodes):
+            ep = store.episode(i)
+            steps = len(ep["actions"])
+            g = data.create_group(f"demo_{i}")
+            g.attrs["num_samples"] = steps
+            g.attrs["success"] = bool(success[i])
+            if "seed" in store.episodes:
+                g.attrs["seed"] = int(store.episodes["seed"][i])
+            g.create_dataset("actions", data=ep["actions"])
+            g.create_dataset("states", data=ep["env_state"])
+            last = np.zeros(steps, np.int64)
+            last[-1] = 1
+            g.create_dataset("rewards", data=(last * bool(success[i])).astype(np.float64))
+            g.create_dataset("dones", data=last)
+            for key in obs_keys:
+                g.create_dataset(key, data=ep[key])
+                # the observation after each step; the store has none after the last one,
+                # which repeats (robomimic reads next_obs by default, BC ignores it)
+                nxt = np.concatenate([ep[key][1:], ep[key][-1:]])
+                g.create_dataset("next_" + key, data=nxt)
+            info_g = g.create_group("datagen_info")
+            s, e = store.episode_starts[i], store.episode_ends[i]
+            for key in pose_keys:
+                info_g.create_dataset(key, data=matrices[key][s:e])
+            for key in signals:
+                name = key.removeprefix("subtask_signals/")
+                info_g.create_dataset(f"subtask_term_signals/{name}", data=ep[key].astype(np.int64))
+            info_g.create_dataset("gripper_action", data=ep["gripper"][:, None])
+            if "source_demo" in store.episodes:
+                g.create_dataset("src_demo_inds", data=store.episodes["source_demo"][i])
+        data.attrs["total"] = int(store.episode_ends[-1])
+        data.attrs["env_args"] = json.dumps(info.env_args)
+        train, valid = split(store.n_episodes, info.valid_fraction)
+        for name, idx in (("train", train), ("valid", valid)):
+            f.create_dataset(f"mask/{name}", data=np.array([f"demo_{i}" for i in idx], dtype="S"))
+
+
+@dataclass(frozen=True)
+class RobomimicDemo:
+    """One demo of a robomimic file: its name, reset seed (-1 when the file has none), the
+    flat simulator state before the first action (S,) and the actions (T, 7)."""
+
+    name: str
+    seed: int
+    initial_state: np.ndarray
+    actions: np.ndarray
+
+
+def _demo_order(names: list[str]) -> list[str]:
+    """demo_<i> by i, as robomimic orders them (other names after, alphabetically)."""
+    numbered = sorted((int(n[5:]), n) for n in names if n.startswith("demo_") and n[5:].isdigit())
+    return [n for _, n in numbered] + sorted(set(names) - {n for _, n in numbered})
+
+
+def read(path: str | os.PathLike, backend: str, task: str) -> list[RobomimicDemo]:
+    """Every demo of a robomimic HDF5 file, checked before any simulation: data/env_args must
+    name this back end and task (as our export writes them), each demo must have actions
+    (T, 7) and states (T, S) with T >= 1 and finite values. Raises InputError naming the file
+    and key."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: robomimic file not found")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise InputError(f"{path}: not an HDF5 file ({exc})") from exc
+    with f:
+        if "data" not in f:
+            raise InputError(f"{path}: no 'data' group (not a robomimic file)")
+        data = f["data"]
+        try:
+            kwargs = json.loads(data.attrs["env_args"])["env_kwargs"]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{path}: data.attrs['env_args'] missing or not JSON") from exc
+        got = (kwargs.get("backend"), kwargs.get("task"))
+        if got != (backend, task):
+            raise InputError(
+                f"{path}: env_args.env_kwargs names backend/task {got[0]!r}/{got[1]!r}, "
+                f"expected {backend!r}/{task!r}"
+            )
+        demos = []
+        for name in _demo_order(list(data)):
+            g = data[name]
+            for key in ("actions", "states"):
+                if key not in g:
+                    raise InputError(f"{path}: data/{name}/{key} missing")
+            actions = np.asarray(g["actions"], np.float32)
+            states = np.asarray(g["states"], np.float32)
+            if actions.ndim != 2 or actions.shape[1] != 7 or len(actions) == 0:
+                raise InputError(
+                    f"{path}: data/{name}/actions has shape {actions.shape}, expected (T, 7)"
+                )
+            if states.ndim != 2 or len(states) != len(actions):
+                raise InputError(
+                    f"{path}: data/{name}/states has shape {states.shape}, expected "
+                    f"({len(actions)}, S)"
+                )
+            if not (np.isfinite(actions).all() and np.isfinite(states).all()):
+                raise InputError(f"{path}: data/{name}: NaN or infinite action or state")
+            seed = int(g.attrs.get("seed", -1))
+            demos.append(RobomimicDemo(name, seed, states[0], actions))
+    if not demos:
+        raise InputError(f"{path}: no demos under data/")
+    return demos

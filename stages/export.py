@@ -1,0 +1,88 @@
+"""export: a generated (or source) store as robomimic HDF5, a LeRobot dataset and ManiSkill
+trajectory files (export.formats), all in one output directory."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from tqdm import tqdm
+
+import envs
+from mimicgen_pipe import exporters, layout
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.executors import Executor
+from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.outputs import claim, output_set
+from mimicgen_pipe.store import read_store
+from stages import add_selection_arguments, stage_params
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_selection_arguments(p)
+    p.add_argument("--variant", help="export data/generated/<task>_<variant>.zarr")
+    p.add_argument("--store", help="the store to export instead (generated, failed or source)")
+    p.add_argument("--out", help="output directory (default: data/export/<store name>)")
+    p.add_argument("--formats", help="comma-separated formats (default: export.formats)")
+    p.add_argument("--metrics", help="metrics JSON (default: metrics/export_<store name>.json)")
+
+
+def run(args: argparse.Namespace) -> None:
+    params = stage_params(args)
+    if (args.store is None) == (args.variant is None):
+        raise InputError("give either --variant (a generated store) or --store")
+    store_path = Path(args.store or layout.generated_store(params.task, args.variant))
+    formats = args.formats.split(",") if args.formats else list(params.export.formats)
+    for fmt in formats:
+        if fmt not in exporters.FORMATS:
+            known = ", ".join(exporters.FORMATS)
+            raise InputError(f"export format {fmt!r}: unknown (known: {known})")
+    store = read_store(store_path, kind=("source", "generated", "failed"), task=params.task)
+    name = store_path.name.removesuffix(".zarr")
+    out = Path(args.out or layout.export_dir(name))
+    metrics_path = Path(args.metrics or layout.metrics_file("export", name))
+    spec = envs.task_spec(store.attrs["backend"], params.task)
+    info = exporters.export_info(
+        store.attrs, spec, params.train.obs_keys, params.train.val_fraction
+    )
+    for fmt in formats:  # every format's check before anything is written
+        exporters.check(store, fmt, info)
+    claim(out, metrics_path)
+    metrics: dict[str, float | int] = {"episodes": store.n_episodes}
+    with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
+        tmp_out.mkdir()
+        for fmt in formats:
+            t0 = time.perf_counter()
+            extra = _maniskill_replays(store, params.export.workers) if fmt == "maniskill" else {}
+            if fmt == "maniskill":
+                ok = sum(bool(r.success[-1]) for r in extra["replays"])
+                metrics["maniskill_replay_success"] = ok / max(1, store.n_episodes)
+            path = exporters.write(store, fmt, tmp_out, info, **extra)
+            metrics[f"{fmt}_seconds"] = round(time.perf_counter() - t0, 2)
+            print(f"export: {fmt} -> {out / path.name}")
+        write_metrics(tmp_metrics, metrics)
+    print(f"export: {store.n_episodes} episodes of {store_path} -> {out}")
+
+
+def _maniskill_replays(store, workers: int) -> dict:
+    """The replays, state layout and env_info that the ManiSkill format writes."""
+    from envs.maniskill import trajectory
+
+    env = envs.make_env("maniskill", store.attrs["task"], store.attrs["robot"])
+    state_layout = trajectory.state_layout(env)
+    env_info = trajectory.env_info(env, env.spec.horizon)
+    env.close()
+    episodes = [
+        (ep["env_state"][0], ep["actions"]) for ep in map(store.episode, range(store.n_episodes))
+    ]
+    job = trajectory.ReplayJob(store.attrs["task"], store.attrs["robot"])
+    replays = list(
+        tqdm(
+            trajectory.replay_episodes(episodes, job, Executor("local", workers)),
+            total=len(episodes),
+            desc="export: replaying in ManiSkill",
+            unit="episode",
+        )
+    )
+    return {"replays": replays, "layout": state_layout, "env_info": env_info}
