@@ -66,6 +66,21 @@ def make_env(backend: str, task: str, robot: str = "panda"):
     return _module(backend).make_env(task, robot)
 
 
+def make_renderer(backend: str, task: str, robot: str, width: int, height: int):
+    """A renderer of stored states of ``task`` on ``backend``: ``.frame(state)`` gives an
+    (height, width, 3) uint8 RGB image on the CPU, ``.close()``. ManiSkill's renders the Panda
+    only (the arm ManiSkill's own task registers)."""
+    task_spec(backend, task)
+    check_robot(backend, robot)
+    if backend == "maniskill":
+        if robot != "panda":
+            raise InputError(f"render: robot {robot!r}: the maniskill renderer shows panda only")
+        from envs.maniskill.render import Renderer
+    else:
+        from envs.pybullet.render import Renderer
+    return Renderer(task, robot, width, height)
+
+
 @dataclass(frozen=True)
 class SourceEpisode:
     """One source demo before recording: its reset seed (D0), the env state before the first

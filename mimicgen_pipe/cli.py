@@ -26,6 +26,7 @@ STAGES = {
     "train": "train BC-RNN policies on the source demos or a generated dataset",
     "evaluate": "roll out every checkpoint of a training run in one reset variant",
     "export": "a generated store as robomimic HDF5, LeRobot and ManiSkill trajectories",
+    "render": "MP4s and GIFs of the first kept and failed generated episodes, captioned",
     "report": "report.md and report.html: our metrics beside the paper's, with ablations",
 }
 

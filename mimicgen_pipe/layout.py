@@ -62,3 +62,8 @@ def export_dir(store_name: str) -> Path:
     """The export stage's directory for a store (its name without .zarr): one file or
     folder per format (mimicgen_pipe.exporters.FILE_NAMES)."""
     return Path("data/export") / store_name
+
+
+def media_dir(task: str, variant: str) -> Path:
+    """The render stage's videos of one variant (kept in git: the report shows its GIFs)."""
+    return Path("media") / f"{task}_{variant}"

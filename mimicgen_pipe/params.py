@@ -158,6 +158,16 @@ class ExportParams:
 
 
 @dataclass(frozen=True)
+class RenderParams:
+    """episodes: videos of the first N kept and the first N failed episodes per variant.
+    width, height: frame size [px] before the caption band."""
+
+    episodes: int = 2
+    width: int = 320
+    height: int = 240
+
+
+@dataclass(frozen=True)
 class RayParams:
     """address: the Ray cluster that stages with ``executor: ray`` run on (``auto``,
     ``host:port`` or ``ray://host:port``); null: the ``RAY_ADDRESS`` environment variable
@@ -195,6 +205,7 @@ class Params:
     evaluate: EvaluateParams = field(default_factory=EvaluateParams)
     transfer: TransferParams = field(default_factory=TransferParams)
     export: ExportParams = field(default_factory=ExportParams)
+    render: RenderParams = field(default_factory=RenderParams)
     ray: RayParams = field(default_factory=RayParams)
 
 
@@ -223,6 +234,9 @@ _RANGES: dict[str, tuple[float, float]] = {
     "evaluate.episodes": (1, 100_000),
     "evaluate.workers": (1, 256),
     "export.workers": (1, 256),
+    "render.episodes": (0, 1000),
+    "render.width": (16, 4096),
+    "render.height": (16, 4096),
     "transfer.attempts": (1, 10_000_000),
 }
 

@@ -44,7 +44,8 @@ def replay(env, initial_state: np.ndarray, actions: np.ndarray) -> Replayed:
     equivalent pd_joint_pos actions (T, 8): arm drive targets [rad], gripper action."""
     env.set_state(initial_state)
     arm = env.unwrapped.agent.controller.controllers["arm"]
-    states, success, joint = [env.get_state()], [], []
+    # the first state as stored: set and read back, the robot's root moves by ~1e-8
+    states, success, joint = [np.asarray(initial_state, np.float32)], [], []
     for action in np.asarray(actions, np.float32):
         env.step(action)
         states.append(env.get_state())

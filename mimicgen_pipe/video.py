@@ -1,0 +1,89 @@
+"""Videos of stored episodes: captions, MP4 and GIF writing, and which subtask each step is
+in. Frames are (H, W, 3) uint8 RGB, rendered by the back ends (envs.make_renderer)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mimicgen_pipe.taskspec import SubtaskSpec
+
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+KEPT_RGB, FAILED_RGB, TEXT_RGB, BAND_RGB = (
+    (90, 230, 90),
+    (255, 90, 90),
+    (255, 255, 255),
+    (25, 25, 25),
+)
+
+
+def subtask_at_steps(
+    signals: Mapping[str, np.ndarray], subtasks: Sequence[SubtaskSpec], length: int
+) -> np.ndarray:
+    """(length,) int: the subtask each step belongs to, as the generator walks them: subtask i
+    ends at the first rise of its term signal after subtask i-1 ended (an episode that fails
+    stays in the subtask whose signal never rose)."""
+    out = np.zeros(length, np.int64)
+    prev = 0
+    for i, sub in enumerate(subtasks[:-1]):
+        s = np.asarray(signals.get(f"subtask_signals/{sub.term_signal}", np.zeros(length)), bool)
+        rises = np.flatnonzero(~s[:-1] & s[1:]) + 1
+        rises = rises[rises > prev]
+        if rises.size == 0:
+            break
+        prev = int(rises[0])
+        out[prev:] = i + 1
+    return out
+
+
+def caption(frame: np.ndarray, lines: Sequence[str], ok: bool | None = None) -> np.ndarray:
+    """``frame`` with a dark band below holding ``lines`` (the last one green when ``ok``,
+    red when not ok). The band's height depends on the frame width only and makes the height
+    a multiple of 16 (what H.264 in yuv420p wants), so every frame of a video has one size."""
+    h, w = frame.shape[:2]
+    scale = w / 640  # 0.5 at 320 px wide
+    pad = max(4, int(8 * scale))
+    line_h = cv2.getTextSize("Ag", FONT, scale, 1)[0][1] + pad
+    band = line_h * len(lines) + 6
+    band += (-(h + band)) % 16
+    out = np.empty((h + band, w, 3), np.uint8)
+    out[:h], out[h:] = frame, BAND_RGB
+    for i, line in enumerate(lines):
+        colour = TEXT_RGB
+        if ok is not None and i == len(lines) - 1:
+            colour = KEPT_RGB if ok else FAILED_RGB
+        size = scale * min(1.0, (w - 8) / max(1, cv2.getTextSize(line, FONT, scale, 1)[0][0]))
+        y = h + 3 + line_h * (i + 1) - pad // 2
+        cv2.putText(out, line, (4, y), FONT, size, colour, 1, cv2.LINE_AA)
+    return out
+
+
+def write_mp4(path: Path, frames: Sequence[np.ndarray], fps: int) -> None:
+    """H.264 MP4 at ``fps`` frames per second (imageio's ffmpeg)."""
+    import imageio.v2 as imageio
+
+    with imageio.get_writer(
+        str(path), fps=fps, codec="libx264", quality=7, pixelformat="yuv420p",
+        macro_block_size=16, ffmpeg_log_level="error",
+    ) as writer:  # fmt: skip
+        for frame in frames:
+            writer.append_data(frame)
+
+
+def write_gif(path: Path, frames: Sequence[np.ndarray], fps: int, width: int = 240) -> None:
+    """A small looping GIF for the report: every second frame, ``width`` pixels wide, one
+    64-colour palette per frame (a few hundred kB for a 100-step episode)."""
+    from PIL import Image
+
+    images = []
+    for frame in frames[::2]:
+        height = round(frame.shape[0] * width / frame.shape[1])
+        small = cv2.resize(frame, (width, height), interpolation=cv2.INTER_AREA)
+        images.append(Image.fromarray(small).quantize(colors=64, dither=Image.Dither.NONE))
+    images[0].save(
+        path, save_all=True, append_images=images[1:], duration=round(2000 / fps), loop=0,
+        optimize=True,
+    )  # fmt: skip

@@ -1,0 +1,92 @@
+"""render: MP4s (and GIFs for the report) of the first kept and failed generated episodes of
+one variant, replayed from their stored states, captioned with the subtask and source demo."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from tqdm import tqdm
+
+import envs
+from mimicgen_pipe import layout
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.outputs import check_same_run, claim, output_set
+from mimicgen_pipe.store import read_store
+from mimicgen_pipe.video import caption, subtask_at_steps, write_gif, write_mp4
+from stages import add_selection_arguments, stage_params
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_selection_arguments(p)
+    p.add_argument("--variant", required=True, help="reset variant, e.g. D0 or D1")
+    p.add_argument(
+        "--generated",
+        help="generated store (default: data/generated/<task>_<variant>.zarr; failed "
+        "episodes from <name>_failed.zarr beside it)",
+    )
+    p.add_argument("--out", help="output directory (default: media/<task>_<variant>)")
+    p.add_argument("--metrics", help="metrics JSON (default: metrics/render_<task>_<variant>.json)")
+
+
+def run(args: argparse.Namespace) -> None:
+    params = stage_params(args)
+    r = params.render
+    spec = envs.task_spec(params.backend, params.task)
+    envs.check_variant(spec, args.variant)
+    kept_path = Path(args.generated or layout.generated_store(params.task, args.variant))
+    failed_path = kept_path.with_name(kept_path.name.replace(".zarr", "_failed.zarr"))
+    out = Path(args.out or layout.media_dir(params.task, args.variant))
+    metrics_path = Path(args.metrics or layout.metrics_file("render", params.task, args.variant))
+    stores = {
+        kind: read_store(path, kind=kind, task=params.task)
+        for kind, path in (("generated", kept_path), ("failed", failed_path))
+    }
+    for store in stores.values():  # an empty store (no failures) has no arrays at all
+        if store.n_episodes and "env_state" not in store.data:
+            raise InputError(f"{store.path}: missing data keys ['env_state']")
+    check_same_run({k: s.attrs.get("run_id") for k, s in stores.items()})
+    claim(out, metrics_path)
+    attrs = stores["generated"].attrs
+    renderer = envs.make_renderer(params.backend, params.task, attrs["robot"], r.width, r.height)
+    fps = int(attrs["control_freq"])
+    frames_total, seconds = 0, 0.0
+    with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
+        tmp_out.mkdir()
+        for kind, store in stores.items():
+            name = "kept" if kind == "generated" else "failed"
+            for i in range(min(r.episodes, store.n_episodes)):
+                ep = store.episode(i)
+                steps = len(ep["env_state"])
+                phase = subtask_at_steps(ep, spec.subtasks, steps)
+                source = store.episodes["source_demo"][i]
+                ok = kind == "generated"
+                status = "kept (success)" if ok else "failed in subtask " + (
+                    spec.subtasks[int(store.episodes["failure_reason"][i])].name)  # fmt: skip
+                frames = []
+                t0 = time.perf_counter()
+                for t in tqdm(range(steps), desc=f"render: {name} {i}", unit="frame", leave=False):
+                    k = int(phase[t])
+                    lines = [
+                        f"{params.task} {args.variant} {name} #{i}  step {t}/{steps}",
+                        f"subtask {k + 1}/{len(spec.subtasks)} {spec.subtasks[k].name}"
+                        f"  source demo {int(source[k])}",
+                        status,
+                    ]
+                    frames.append(caption(renderer.frame(ep["env_state"][t]), lines, ok))
+                seconds += time.perf_counter() - t0
+                frames_total += steps
+                write_mp4(tmp_out / f"{name}_{i}.mp4", frames, fps)
+                if i == 0:
+                    write_gif(tmp_out / f"{name}_{i}.gif", frames, fps)
+                print(f"render: {name} episode {i} ({steps} frames) -> {out / f'{name}_{i}.mp4'}")
+        renderer.close()
+        write_metrics(
+            tmp_metrics,
+            {
+                "frames": frames_total,
+                "ms_per_frame": round(1000 * seconds / max(1, frames_total), 1),
+            },
+        )
