@@ -38,6 +38,11 @@ def generated_store(task: str, variant: str, failed: bool = False) -> Path:
     return Path("data/generated") / f"{task}_{variant}{'_failed' if failed else ''}.zarr"
 
 
+def failed_store(kept: Path) -> Path:
+    """Where a generate run's failed attempts lie: <name>_failed.zarr beside its kept store."""
+    return kept.with_name(kept.name.replace(".zarr", "_failed.zarr"))
+
+
 def metrics_file(stage: str, task: str, variant: str | None = None) -> Path:
     name = f"{stage}_{task}" + (f"_{variant}" if variant else "")
     return Path("metrics") / f"{name}.json"
@@ -64,6 +69,9 @@ def export_dir(store_name: str) -> Path:
     return Path("data/export") / store_name
 
 
+MEDIA = Path("media")  # the render stage's videos (kept in git: the report shows its GIFs)
+
+
 def media_dir(task: str, variant: str) -> Path:
-    """The render stage's videos of one variant (kept in git: the report shows its GIFs)."""
-    return Path("media") / f"{task}_{variant}"
+    """The render stage's videos of one variant."""
+    return MEDIA / f"{task}_{variant}"

@@ -12,6 +12,14 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.taskspec import SubtaskSpec
 
 
+def first_rise(signal: np.ndarray, after: int) -> int | None:
+    """The first step t > ``after`` at which ``signal`` (T,) turns from 0 to 1, or None."""
+    s = np.asarray(signal, dtype=bool)
+    rises = np.flatnonzero(~s[:-1] & s[1:]) + 1
+    rises = rises[rises > after]
+    return int(rises[0]) if rises.size else None
+
+
 def split_into_segments(
     signals: Mapping[str, np.ndarray], subtasks: Sequence[SubtaskSpec]
 ) -> np.ndarray:
@@ -27,14 +35,12 @@ def split_into_segments(
     for sub in subtasks[:-1]:
         if sub.term_signal not in signals:
             raise ValueError(f"subtask {sub.name}: no signal {sub.term_signal!r}")
-        s = np.asarray(signals[sub.term_signal], dtype=bool)
-        rises = np.flatnonzero(~s[:-1] & s[1:]) + 1
-        rises = rises[rises > prev]
-        if rises.size == 0:
+        end = first_rise(signals[sub.term_signal], prev)
+        if end is None:
             raise ValueError(
                 f"subtask {sub.name}: signal {sub.term_signal!r} never turns on after step {prev}"
             )
-        prev = int(rises[0])
+        prev = end
         ends.append(prev)
     return np.asarray(ends, dtype=np.int64)
 

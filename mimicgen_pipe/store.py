@@ -50,6 +50,11 @@ class EpisodeStore:
     def episode_starts(self) -> np.ndarray:
         return np.concatenate([[0], self.episode_ends[:-1]]).astype(np.int64)
 
+    @property
+    def lengths(self) -> np.ndarray:
+        """(N_episodes,) int64 steps per episode."""
+        return self.episode_ends - self.episode_starts
+
     def episode(self, i: int) -> dict[str, np.ndarray]:
         s, e = self.episode_starts[i], self.episode_ends[i]
         return {k: v[s:e] for k, v in self.data.items()}

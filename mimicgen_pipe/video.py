@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mimicgen_pipe.segments import first_rise
 from mimicgen_pipe.taskspec import SubtaskSpec
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
@@ -27,15 +28,13 @@ def subtask_at_steps(
     ends at the first rise of its term signal after subtask i-1 ended (an episode that fails
     stays in the subtask whose signal never rose)."""
     out = np.zeros(length, np.int64)
-    prev = 0
+    end: int | None = 0
     for i, sub in enumerate(subtasks[:-1]):
-        s = np.asarray(signals.get(f"subtask_signals/{sub.term_signal}", np.zeros(length)), bool)
-        rises = np.flatnonzero(~s[:-1] & s[1:]) + 1
-        rises = rises[rises > prev]
-        if rises.size == 0:
+        key = f"subtask_signals/{sub.term_signal}"
+        end = first_rise(signals[key], end) if key in signals else None
+        if end is None:
             break
-        prev = int(rises[0])
-        out[prev:] = i + 1
+        out[end:] = i + 1
     return out
 
 

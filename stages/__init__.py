@@ -18,6 +18,17 @@ def add_selection_arguments(p: argparse.ArgumentParser, robot: bool = False) -> 
         p.add_argument("--robot", help="arm to generate with (default: generate.robot)")
 
 
+def add_generated_arguments(p: argparse.ArgumentParser) -> None:
+    """--variant and --generated, for stages that read a generate run's kept and failed
+    stores (layout.generated_store, layout.failed_store)."""
+    p.add_argument("--variant", required=True, help="reset variant, e.g. D0 or D1")
+    p.add_argument(
+        "--generated",
+        help="generated store (default: data/generated/<task>_<variant>.zarr; its failed "
+        "attempts are read from <name>_failed.zarr beside it)",
+    )
+
+
 def check_variants(params: Params, path: str) -> None:
     """InputError naming the params key when the main task (generate.variants) or a
     robot-transfer task (transfer.variants) lacks one of the listed reset variants."""

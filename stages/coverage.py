@@ -21,17 +21,12 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import check_same_run
 from mimicgen_pipe.store import read_store
-from stages import add_selection_arguments, stage_params
+from stages import add_generated_arguments, add_selection_arguments, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_selection_arguments(p)
-    p.add_argument("--variant", required=True, help="reset variant, e.g. D0 or D1")
-    p.add_argument(
-        "--generated",
-        help="generated store (default: data/generated/<task>_<variant>.zarr; its failed "
-        "attempts are read from <name>_failed.zarr beside it)",
-    )
+    add_generated_arguments(p)
     p.add_argument(
         "--metrics", help="metrics JSON (default: metrics/coverage_<task>_<variant>.json)"
     )
@@ -50,7 +45,7 @@ def run(args: argparse.Namespace) -> None:
     envs.check_variant(spec, args.variant)
     bounds = reset_bounds(spec, args.variant)
     kept_path = Path(args.generated or layout.generated_store(params.task, args.variant))
-    failed_path = kept_path.with_name(kept_path.name.replace(".zarr", "_failed.zarr"))
+    failed_path = layout.failed_store(kept_path)
     metrics_path = Path(args.metrics or layout.metrics_file("coverage", params.task, args.variant))
     table_path = Path(args.table or layout.plot_file("coverage", params.task, args.variant))
     heatmap_path = Path(args.heatmap or layout.heatmap_file(params.task, args.variant))

@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> None:
     envs.check_robot(params.backend, g.robot)
     parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
     out = Path(args.out or layout.generated_store(params.task, args.variant))
-    failed_out = out.with_name(out.name.replace(".zarr", "_failed.zarr"))
+    failed_out = layout.failed_store(out)
     metrics_path = Path(args.metrics or layout.metrics_file("generate", params.task, args.variant))
     claim(out, failed_out, metrics_path)  # one run per output set; fails at once if taken
     store = read_store(

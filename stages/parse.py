@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> None:
         task=params.task,
         kind="source",
     )
-    lengths = np.diff(np.concatenate([[0], store.episode_ends]))
+    lengths = store.lengths
     if args.boundaries:
         annotated = read_boundaries(Path(args.boundaries), lengths.tolist(), spec.subtasks)
     term_index = []

@@ -16,17 +16,12 @@ from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import check_same_run, claim, output_set
 from mimicgen_pipe.store import read_store
 from mimicgen_pipe.video import caption, subtask_at_steps, write_gif, write_mp4
-from stages import add_selection_arguments, stage_params
+from stages import add_generated_arguments, add_selection_arguments, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_selection_arguments(p)
-    p.add_argument("--variant", required=True, help="reset variant, e.g. D0 or D1")
-    p.add_argument(
-        "--generated",
-        help="generated store (default: data/generated/<task>_<variant>.zarr; failed "
-        "episodes from <name>_failed.zarr beside it)",
-    )
+    add_generated_arguments(p)
     p.add_argument("--out", help="output directory (default: media/<task>_<variant>)")
     p.add_argument("--metrics", help="metrics JSON (default: metrics/render_<task>_<variant>.json)")
 
@@ -37,7 +32,7 @@ def run(args: argparse.Namespace) -> None:
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
     kept_path = Path(args.generated or layout.generated_store(params.task, args.variant))
-    failed_path = kept_path.with_name(kept_path.name.replace(".zarr", "_failed.zarr"))
+    failed_path = layout.failed_store(kept_path)
     out = Path(args.out or layout.media_dir(params.task, args.variant))
     metrics_path = Path(args.metrics or layout.metrics_file("render", params.task, args.variant))
     stores = {

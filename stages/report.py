@@ -89,7 +89,6 @@ def run(args: argparse.Namespace) -> None:
             transfer_table([params.task], variants, ["panda", *t.maniskill_robots], m),
         ]
     )
-    media_root = layout.media_dir(params.task, "D0").parent
     media = {}
     for v in variants:
         folder = layout.media_dir(params.task, v)
@@ -97,7 +96,7 @@ def run(args: argparse.Namespace) -> None:
             metrics = this_run.metrics.get(layout.metrics_file("render", params.task, v).stem, {})
             media[v] = {"files": {p.name for p in folder.iterdir()}, **metrics}
     # the report's folder refers to the videos where the render stage keeps them
-    blocks += video_blocks(params.task, variants, media, f"../{media_root}")
+    blocks += video_blocks(params.task, variants, media, f"../{layout.MEDIA}")
     with atomic_directory(out) as tmp:
         # the heat maps are copied beside report.md so that the folder stands on its own
         (tmp / "report.md").write_text(render_markdown(blocks))

@@ -129,7 +129,7 @@ def test_lerobot_export_loads_with_lerobots_dataset_class(tmp_path):
     info = export_info(store)
     path = exporters.write(store, "lerobot", tmp_path, info)
     state = np.concatenate([store.data[f"obs/{k}"] for k in OBS], axis=1)
-    lengths = np.diff(np.concatenate([[0], store.episode_ends]))
+    lengths = store.lengths
     np.savez(tmp_path / "expected.npz", action=store.data["actions"], state=state,
              lengths=lengths, episode_index=np.repeat(np.arange(len(LENGTHS)), lengths),
              fps=20, task=info.task_description, action_names=exporters.lerobot.ACTION_NAMES,

@@ -105,7 +105,7 @@ def write(store: EpisodeStore, path: Path, info) -> None:
     path = Path(path)
     (path / "meta").mkdir(parents=True)
     n_steps = int(store.episode_ends[-1])
-    lengths = np.diff(np.concatenate([[0], store.episode_ends])).astype(np.int64)
+    lengths = store.lengths
     episode_index = np.repeat(np.arange(store.n_episodes, dtype=np.int64), lengths)
     frame_index = np.arange(n_steps, dtype=np.int64) - np.repeat(store.episode_starts, lengths)
     frames = {

@@ -75,8 +75,8 @@ def _write_file(
     episodes = []
     with h5py.File(path, "w") as f:
         for i, rep in enumerate(replays):
-            actions = store.episode(i)["actions"] if control_mode != "pd_joint_pos" else None
-            actions = rep.joint_actions if actions is None else actions
+            joint = control_mode == "pd_joint_pos"
+            actions = rep.joint_actions if joint else store.episode(i)["actions"]
             g = f.create_group(f"traj_{i}")
             g.create_dataset("actions", data=np.asarray(actions, np.float32))
             for kind, parts in _split_states(rep.states, layout).items():
