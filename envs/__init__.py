@@ -1,11 +1,14 @@
 """Simulator back ends behind one protocol (mimicgen_pipe.generation.Env).
 
-Simulator packages are imported only when an env is made, so ``task_spec`` and the
-library stay importable without them.
+A back end is a package ``envs/<backend>/`` with its tasks one file each under
+``envs/<backend>/tasks/``, looked up by name. Simulator packages are imported only when an
+env is made, so ``task_spec`` and the library stay importable without them.
 """
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,20 +33,46 @@ def _module(backend: str):
     raise InputError(f"backend {backend!r}: unknown (known: {', '.join(BACKENDS)})")
 
 
+def task_names(backend: str) -> tuple[str, ...]:
+    """The tasks ``backend`` has: the files in envs/<backend>/tasks/."""
+    tasks = _module(backend).tasks
+    return tuple(sorted(m.name for m in pkgutil.iter_modules(tasks.__path__) if not m.ispkg))
+
+
+def load_task(backend: str, name: str):
+    """The back end's task object (``TASK``) defined in envs/<backend>/tasks/<name>.py;
+    InputError for an unknown name."""
+    known = task_names(backend)
+    if name not in known:
+        raise InputError(
+            f"task {name!r}: unknown for backend {backend} (known: {', '.join(known)})"
+        )
+    task = importlib.import_module(f"envs.{backend}.tasks.{name}").TASK
+    if task.spec.name != name:
+        raise ValueError(f"envs/{backend}/tasks/{name}.py defines task {task.spec.name!r}")
+    return task
+
+
 def task_spec(backend: str, task: str) -> TaskSpec:
     """The task spec of ``task`` on ``backend``; InputError for an unknown name."""
-    tasks = _module(backend).TASKS
-    if task not in tasks:
-        raise InputError(
-            f"task {task!r}: unknown for backend {backend} (known: {', '.join(tasks)})"
-        )
-    return tasks[task].spec
+    return load_task(backend, task).spec
 
 
 def check_variant(spec: TaskSpec, variant: str) -> None:
-    if variant not in spec.reset_bounds:
+    if variant not in spec.reset_variants:
         raise InputError(
             f"variant {variant!r}: unknown for task {spec.name} (known: {', '.join(spec.variants)})"
+        )
+
+
+def check_obs_keys(spec: TaskSpec, keys, where: str) -> None:
+    """InputError naming ``where`` when an observation key is not one ``spec``'s task
+    records."""
+    unknown = [k for k in keys if k not in spec.provided_obs_keys]
+    if unknown:
+        raise InputError(
+            f"{where}: {', '.join(map(repr, unknown))} not an observation of task {spec.name} "
+            f"(known: {', '.join(spec.provided_obs_keys)})"
         )
 
 

@@ -7,7 +7,7 @@ the paper's n**6 for two objects).
 
 Yaw is the top-down angle atan2(R[1, 0], R[0, 0]) of the object's x axis [rad], taken modulo
 a full turn into [lo, lo + 2 pi) of the bounds. It is not folded by an object's symmetry:
-StackCube's cubes look the same every 90 deg, but the generator carries the source grasp in
+a cube looks the same every 90 deg, but the generator carries the source grasp in
 the cube's frame, so yaws 90 deg apart give grasps 90 deg apart (other arm configurations),
 and the policy's observation carries the quaternion as it is.
 """
@@ -31,12 +31,12 @@ _OUTSIDE_TOL = 1e-6  # [m] or [rad]: resets sample up to their bounds, floats la
 def reset_bounds(spec: TaskSpec, variant: str) -> list[ObjectBounds]:
     """The bounds of every object of ``spec`` in ``variant``, in spec.objects order. Raises
     InputError when the task spec lacks them."""
-    if variant not in spec.reset_bounds:
+    if variant not in spec.reset_variants:
         raise InputError(
             f"task {spec.name}: no reset bounds for variant {variant!r} "
             f"(task spec has: {', '.join(spec.variants) or 'none'})"
         )
-    per_object = spec.reset_bounds[variant]
+    per_object = spec.reset_variants[variant].bounds
     missing = [o for o in spec.objects if o not in per_object]
     if missing:
         raise InputError(

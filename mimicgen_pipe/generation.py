@@ -18,27 +18,53 @@ from mimicgen_pipe.taskspec import TaskSpec
 
 
 class Env(Protocol):
-    """What the generator needs from a simulator back end (see DESIGN.md, env protocol).
-    All poses are 4x4 in the world frame [m]."""
+    """Everything the generator and the stages call on a simulator back end's env (see
+    DESIGN.md, env protocol); a back end's env implements all of it. All poses are 4x4
+    homogeneous transforms in the world frame [m]."""
 
-    def reset(self, seed: int, variant: str) -> None: ...
+    spec: TaskSpec  # the task (envs/<backend>/tasks/<task>.py)
+    robot: str  # the arm's name, e.g. panda
+    control_mode: str  # the action space, e.g. ManiSkill's pd_ee_delta_pose
+    control_freq: int  # control steps per second [Hz]
+
+    def reset(self, seed: int, variant: str) -> None:
+        """A new scene drawn from reset variant ``variant`` (D0, D1, ...) with ``seed``."""
+
     def rebuild(self) -> None:
         """Rebuild the scene, dropping whatever the simulator carries between episodes."""
 
-    def eef_pose(self) -> np.ndarray: ...
-    def object_poses(self) -> dict[str, np.ndarray]: ...
+    def eef_pose(self) -> np.ndarray:
+        """The end effector's (TCP's) pose, world frame."""
+
+    def object_poses(self) -> dict[str, np.ndarray]:
+        """Object name -> pose, world frame, for every object of the task spec."""
+
     def gripper_state(self) -> np.ndarray:
         """Finger joint positions [m]."""
 
-    def step(self, action: np.ndarray) -> None: ...
-    def subtask_signals(self) -> dict[str, bool]: ...
+    def step(self, action: np.ndarray) -> None:
+        """One control step of a (7,) delta-pose action: translation, rotation, gripper."""
+
+    def subtask_signals(self) -> dict[str, bool]:
+        """Signal name -> value now, for every signal the task's subtasks read."""
+
     def is_success(self) -> bool: ...
-    def get_state(self) -> np.ndarray: ...
+
+    def get_state(self) -> np.ndarray:
+        """The whole simulator state as a flat float32 array (for replay and rendering)."""
+
     def set_state(self, state: np.ndarray) -> None: ...
-    def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray: ...
-    def action_to_target_pose(self, action: np.ndarray) -> np.ndarray: ...
+
+    def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray:
+        """The (7,) action that moves the TCP from where it is to ``target`` (world)."""
+
+    def action_to_target_pose(self, action: np.ndarray) -> np.ndarray:
+        """The TCP target (world) that ``action`` commands from where the TCP is."""
+
     def reachable(self, targets: np.ndarray) -> np.ndarray:
         """(K,) bool: whether the arm has an IK solution for each TCP target (K, 4, 4)."""
+
+    def close(self) -> None: ...
 
 
 def transform_segment(
@@ -222,11 +248,10 @@ def run_attempt(
         if not env.reachable(targets).all():
             ik_failed = True
             break
-        noise = config.action_noise * rng.standard_normal((len(targets), 6))
         for k in range(len(targets)):
             eef = env.eef_pose()
             action = env.target_pose_to_action(targets[k], grips[k])
-            action[:6] += noise[k]
+            action = add_action_noise(action[None], config.action_noise, rng)[0]
             action = clip_actions(action).astype(np.float32)
             sig = recorder.record(env, eef, obj_now, action, targets[k])
             if sub.term_signal is not None and sig[sub.term_signal]:

@@ -78,20 +78,6 @@ class CoverageParams:
     bins: int = 3
 
 
-DEFAULT_OBS_KEYS = [
-    "eef_pos",
-    "eef_quat",
-    "gripper_qpos",
-    "cubeA_pos",
-    "cubeA_quat",
-    "cubeB_pos",
-    "cubeB_quat",
-    "eef_to_cubeA_pos",
-    "eef_to_cubeB_pos",
-    "cubeA_to_cubeB_pos",
-]
-
-
 @dataclass(frozen=True)
 class TrainProfile:
     """BC-RNN size and schedule (paper N; robomimic's BC-RNN). hidden x layers LSTM, windows
@@ -116,11 +102,12 @@ class TrainProfile:
 class TrainParams:
     """profile: which of the two profiles below trains. num_demos: generated demos used
     (the first N kept episodes; the source policy uses every source demo). obs_keys: the
-    policy's observation, keys of obs/ in the stores (mimicgen_pipe.observations)."""
+    policy's observation, keys of obs/ in the stores (mimicgen_pipe.observations); None:
+    the task's own (its spec's default_obs_keys), filled in by stages.stage_params."""
 
     profile: Literal["cpu", "paper"] = "cpu"
     num_demos: int = 1000
-    obs_keys: list[str] = field(default_factory=lambda: list(DEFAULT_OBS_KEYS))
+    obs_keys: list[str] | None = None
     val_fraction: float = 0.1
     cpu: TrainProfile = field(
         default_factory=lambda: TrainProfile(

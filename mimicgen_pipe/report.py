@@ -162,7 +162,6 @@ class PaperEntry:
 
 @dataclass(frozen=True)
 class PaperResults:
-    task_names: Mapping[str, str]
     entries: tuple[PaperEntry, ...]
 
     def find(self, **where: Any) -> list[PaperEntry]:
@@ -204,7 +203,7 @@ def load_paper_results(path: str | Path) -> PaperResults:
             )
         except (TypeError, ValueError) as exc:
             raise InputError(f"{where}: {exc}") from exc
-    return PaperResults(dict(raw.get("task_names") or {}), tuple(entries))
+    return PaperResults(tuple(entries))
 
 
 @dataclass(frozen=True)
@@ -333,6 +332,7 @@ def _dgr_stderr(m: Mapping[str, Any] | None) -> float | None:
 
 def build_report(
     task: str,
+    paper_task: str,
     variants: Sequence[str],
     run: Run,
     ablations: Sequence[Run],
@@ -340,8 +340,8 @@ def build_report(
     heatmaps: Mapping[str, str],
 ) -> list[Block]:
     """The report's blocks. ``run``: this workspace's run; ``ablations``: saved ablation runs;
-    ``heatmaps``: variant -> image name of its coverage heat maps (only those present)."""
-    paper_task = paper.task_names.get(task, task)
+    ``heatmaps``: variant -> image name of its coverage heat maps (only those present);
+    ``paper_task``: the paper's task ours stands for (its task file's spec.paper_task)."""
     settings = method_settings(run.params)
     m = run.metrics
     blocks: list[Block] = [
@@ -500,7 +500,7 @@ def build_report(
     blocks.append(
         Text(
             "The paper reports coverage for other tasks only (e.g. Coffee D1 98.8%, "
-            "Threading D1 71%, Appendix Q); it has no number for Stack."
+            f"Threading D1 71%, Appendix Q); it has no number for {paper_task}."
         )
     )
     for v in variants:
@@ -509,17 +509,20 @@ def build_report(
         else:
             blocks.append(Text(f"Heat maps for {v}: {MISSING}."))
 
-    blocks.extend(_ablation_blocks(task, settings, ablations, paper))
+    blocks.extend(_ablation_blocks(task, paper_task, settings, ablations, paper))
     return blocks
 
 
 def _ablation_blocks(
-    task: str, settings: Mapping[str, Any], ablations: Sequence[Run], paper: PaperResults
+    task: str,
+    paper_task: str,
+    settings: Mapping[str, Any],
+    ablations: Sequence[Run],
+    paper: PaperResults,
 ) -> list[Block]:
     blocks: list[Block] = [Heading(2, "Ablations")]
     if not ablations:
         return blocks + [Text(f"No saved ablation runs ({MISSING}).")]
-    paper_task = paper.task_names.get(task, task)
     runs = [(r, method_settings(r.params)) for r in ablations]
     base = [(r, s) for r, s in runs if not changed_settings(settings, s)]
     if not base:

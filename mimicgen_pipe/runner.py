@@ -1,4 +1,5 @@
-"""Running many generation attempts, on any executor (mimicgen_pipe.executors).
+"""Running many generation attempts, on any executor (mimicgen_pipe.executors): the
+generate stage's loop (``generate``), and what it writes (``episode_fields``).
 
 Every attempt's seed is derived from (stage seed, variant, attempt index), and results are
 consumed in attempt order. A simulator carries history from one episode to the next (PhysX
@@ -15,9 +16,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
-from mimicgen_pipe.generation import Attempt, Env, GenerationConfig, SourceDemos, run_attempt
+from mimicgen_pipe.generation import (
+    Attempt,
+    Env,
+    GenerationConfig,
+    SourceDemos,
+    reachable_scenes,
+    run_attempt,
+)
+from mimicgen_pipe.interrupts import Interrupted
+from mimicgen_pipe.metrics import generation_metrics
 from mimicgen_pipe.resume import WorkDir
+from mimicgen_pipe.store import EpisodeStore
 from mimicgen_pipe.taskspec import TaskSpec
 
 
@@ -81,3 +93,134 @@ def run_attempts(
             yield from block
     finally:
         results.close()
+
+
+IK_ABORT_AFTER = 50  # stop when this many attempts in a row, from the first, all failed at IK
+
+
+@dataclass
+class GenerationResult:
+    """A generation run: kept (successful) and failed attempts in attempt order (failed ones
+    stopped at IK before their first step have no steps and are left out), and its metrics
+    (mimicgen_pipe.metrics.generation_metrics plus wall_seconds and steps)."""
+
+    kept: list[Attempt]
+    failed: list[Attempt]
+    metrics: dict
+
+
+def generate(
+    job: AttemptJob,
+    seeds: list[int],
+    executor: Executor,
+    work: WorkDir | None = None,
+    num_demos: int | None = None,
+    on_attempt: Callable[[Attempt, int, int], None] | None = None,
+) -> GenerationResult:
+    """Run attempts from ``seeds`` in order: all of them, or (``num_demos``, the paper's
+    guarantee mode) until ``num_demos`` have succeeded. ``on_attempt(attempt, attempts so
+    far, successes so far)`` is called after each (e.g. a progress bar).
+
+    Raises RuntimeError when the first IK_ABORT_AFTER attempts all failed at IK (the arm
+    cannot reach the task) or when the seeds run out before ``num_demos`` successes; an
+    Interrupted on the way up says how far the run got."""
+    kept: list[Attempt] = []
+    failed: list[Attempt] = []
+    rows: list[tuple[bool, int, float, bool]] = []  # success, failed subtask, seconds, IK
+    t0 = time.perf_counter()
+    results = run_attempts(job, seeds, executor, work)
+    try:
+        if num_demos != 0:
+            for _, attempt, sec in results:
+                rows.append((attempt.success, attempt.failed_subtask, sec, attempt.ik_failed))
+                if len(rows) == IK_ABORT_AFTER and all(r[3] for r in rows):
+                    raise RuntimeError(
+                        f"generate: all of the first {IK_ABORT_AFTER} attempts failed at IK "
+                        "(the robot cannot reach the targets); nothing was written"
+                    )
+                (kept if attempt.success else failed).append(attempt)
+                if on_attempt is not None:
+                    on_attempt(attempt, len(rows), len(kept))
+                if num_demos is not None and len(kept) == num_demos:
+                    break
+    except Interrupted as exc:
+        exc.detail = (
+            f"after {len(rows)} of {len(seeds)} attempts"
+            if num_demos is None
+            else f"after {len(rows)} attempts ({len(kept)} of {num_demos} demos)"
+        )
+        if work is not None:
+            exc.detail += f"; finished blocks kept in {work.path} (the same command resumes)"
+        raise
+    finally:
+        results.close()
+    wall = time.perf_counter() - t0
+    n = len(rows)
+    if num_demos is not None and len(kept) < num_demos:
+        raise RuntimeError(
+            f"generate: {len(kept)} of {num_demos} demos after generate.max_attempts={n} "
+            f"attempts (DGR {100 * len(kept) / max(1, n):.1f}%); raise max_attempts or check "
+            "the source demos. Nothing was written."
+        )
+    metrics = generation_metrics(
+        np.array([r[0] for r in rows], bool),
+        np.array([r[1] for r in rows]),
+        np.array([r[2] for r in rows]),
+        [s.name for s in job.spec.subtasks],
+        np.array([r[3] for r in rows], bool),
+    )
+    # an attempt stopped at IK before its first step has no steps to keep; it is counted in
+    # the metrics only
+    failed = [a for a in failed if len(a.steps)]
+    metrics.update(
+        wall_seconds=wall, steps=int(sum(len(a.steps["actions"]) for a in kept + failed))
+    )
+    return GenerationResult(kept, failed, metrics)
+
+
+def source_demos(store: EpisodeStore, objects: tuple[str, ...]) -> SourceDemos:
+    """A parsed store's arrays in the generator's form (4x4 world poses)."""
+    return SourceDemos(
+        target_poses=store.poses("target_pose"),
+        gripper=np.asarray(store.data["gripper"], np.float64),
+        object_poses={o: store.poses(f"object_poses/{o}") for o in objects},
+        episode_ends=store.episode_ends,
+        term_index=np.asarray(store.episodes["subtask_term_index"], np.int64),
+    )
+
+
+def episode_fields(attempts: list[Attempt], spec: TaskSpec) -> dict[str, np.ndarray]:
+    """meta/episodes of a generated (or failed) store, shaped also when it has none."""
+    n = len(attempts)
+    return {
+        "seed": np.asarray([a.seed for a in attempts], np.int64),
+        "success": np.asarray([a.success for a in attempts], bool),
+        "source_demo": np.asarray([a.source_demo for a in attempts], np.int64).reshape(
+            n, len(spec.subtasks)
+        ),
+        "initial_object_poses": np.asarray([a.initial_object_poses for a in attempts]).reshape(
+            n, len(spec.objects), 4, 4
+        ),
+        "initial_state": np.asarray([a.initial_state for a in attempts], np.float32),
+        "failure_reason": np.asarray([a.failed_subtask for a in attempts], np.int64),
+        "ik_failure": np.asarray([a.ik_failed for a in attempts], bool),
+    }
+
+
+WORKSPACE_SCENES = 8  # scenes sampled to check that the arm can reach the workspace
+
+
+def check_workspace(job: AttemptJob, seeds: list[int], robot: str) -> None:
+    """InputError when the arm can reach the source segments in none of the first
+    WORKSPACE_SCENES scenes of ``seeds`` (generation.reachable_scenes), before any work."""
+    env = job.make_env()
+    try:
+        scenes = reachable_scenes(env, job.sources, job.spec, job.variant, seeds[:WORKSPACE_SCENES])
+    finally:
+        env.close()
+    if scenes == 0:
+        raise InputError(
+            f"robot {robot!r} cannot reach the {job.variant} workspace of {job.spec.name}: in "
+            f"none of {WORKSPACE_SCENES} sampled scenes does it have IK solutions for the "
+            "source demo's segments. Nothing was generated."
+        )

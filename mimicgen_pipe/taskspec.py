@@ -1,9 +1,13 @@
-"""Task specifications: the ordered object-centric subtasks and each reset variant's bounds."""
+"""Task specifications: the ordered object-centric subtasks, each reset variant's
+distribution, and what the task stands for in the paper. Free of simulator imports: a task
+file under ``envs/<backend>/tasks/`` builds one of these."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+
+from mimicgen_pipe.observations import observation_keys
 
 
 @dataclass(frozen=True)
@@ -34,24 +38,62 @@ class ObjectBounds:
 
 
 @dataclass(frozen=True)
+class ResetVariant:
+    """One reset distribution (paper D0/D1/D2): every object's initial pose.
+
+    bounds: object name -> the box its (x, y, yaw) is drawn from, uniformly; coverage bins
+        the same box.
+    min_distance: [m] objects are redrawn while two centres are closer than this.
+    max_reach: [m] objects are redrawn while farther than this horizontally from the robot
+        base (the arm's top-down reach); None: no cut.
+    native: the simulator task's own reset distribution (ManiSkill's D0); ``bounds`` then
+        state the box that distribution covers, for coverage, and nothing is redrawn.
+    """
+
+    bounds: Mapping[str, ObjectBounds]
+    min_distance: float = 0.0
+    max_reach: float | None = None
+    native: bool = False
+
+
+@dataclass(frozen=True)
 class TaskSpec:
     """A task as the generator sees it.
 
     objects: names of the objects whose poses are recorded.
     subtasks: ordered subtasks; all but the last have a term signal.
-    reset_bounds: variant name (D0, D1, ...) -> object name -> bounds of its initial pose.
+    reset_variants: variant name (D0, D1, ...) -> its reset distribution.
     horizon: maximum episode length [control steps] for policy evaluation.
+    paper_task: the paper's task this one stands for (its name in the paper's tables).
+    obs_keys: the policy's default low-dim observation (mimicgen_pipe.observations); empty:
+        every key the task provides.
     """
 
     name: str
     objects: tuple[str, ...]
     subtasks: tuple[SubtaskSpec, ...]
-    reset_bounds: Mapping[str, Mapping[str, ObjectBounds]]
+    reset_variants: Mapping[str, ResetVariant]
     horizon: int
+    paper_task: str = ""
+    obs_keys: tuple[str, ...] = ()
 
     @property
     def variants(self) -> tuple[str, ...]:
-        return tuple(self.reset_bounds)
+        return tuple(self.reset_variants)
+
+    @property
+    def provided_obs_keys(self) -> tuple[str, ...]:
+        """Every observation key the generator records for this task."""
+        return observation_keys(self.objects)
+
+    @property
+    def default_obs_keys(self) -> tuple[str, ...]:
+        return self.obs_keys or self.provided_obs_keys
+
+    @property
+    def signals(self) -> tuple[str, ...]:
+        """The term signals the subtasks read."""
+        return tuple(s.term_signal for s in self.subtasks if s.term_signal is not None)
 
     def __post_init__(self) -> None:
         if not self.subtasks:
@@ -67,3 +109,10 @@ class TaskSpec:
             lo, hi = sub.term_offset_range
             if not 0 <= lo <= hi:
                 raise ValueError(f"task {self.name}: bad offset range {sub.term_offset_range}")
+        for name, variant in self.reset_variants.items():
+            missing = [o for o in self.objects if o not in variant.bounds]
+            if missing:
+                raise ValueError(f"task {self.name}: variant {name} lacks bounds of {missing}")
+        unknown = [k for k in self.obs_keys if k not in self.provided_obs_keys]
+        if unknown:
+            raise ValueError(f"task {self.name}: obs_keys {unknown} are not recorded")

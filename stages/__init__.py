@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 import envs
 from mimicgen_pipe.errors import InputError
@@ -46,13 +47,21 @@ def check_variants(params: Params, path: str) -> None:
 
 
 def stage_params(args: argparse.Namespace) -> Params:
-    """params.yaml, validated (including its variant lists against the task specs), with
-    the command line's --backend/--task/--robot applied."""
+    """params.yaml, validated (including its variant lists and obs keys against the task
+    specs), with the command line's --backend/--task/--robot applied and train.obs_keys
+    filled in from the task file where params leave it null."""
     params = load_params(args.params)
     check_variants(params, args.params)
-    return with_overrides(
+    if params.train.obs_keys is not None:
+        spec = envs.task_spec(params.backend, params.task)
+        envs.check_obs_keys(spec, params.train.obs_keys, f"{args.params}: train.obs_keys")
+    params = with_overrides(
         params,
         getattr(args, "backend", None),
         getattr(args, "task", None),
         getattr(args, "robot", None),
     )
+    if params.train.obs_keys is not None:
+        return params
+    keys = list(envs.task_spec(params.backend, params.task).default_obs_keys)
+    return dataclasses.replace(params, train=dataclasses.replace(params.train, obs_keys=keys))

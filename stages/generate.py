@@ -5,25 +5,29 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import time
 from pathlib import Path
 
-import numpy as np
 from tqdm import tqdm
 
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.generation import Attempt, GenerationConfig, SourceDemos, reachable_scenes
-from mimicgen_pipe.interrupts import Interrupted
-from mimicgen_pipe.metrics import generation_metrics, write_metrics
+from mimicgen_pipe.generation import Attempt, GenerationConfig
+from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import claim, output_set, run_id, store_digest
 from mimicgen_pipe.params import data_params, stage_executor
 from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.resume import WorkDir, code_digest
-from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, AttemptJob, attempt_seed, run_attempts
-from mimicgen_pipe.store import EpisodeStore, read_store, write_store
-from mimicgen_pipe.taskspec import TaskSpec
+from mimicgen_pipe.runner import (
+    ATTEMPTS_PER_BLOCK,
+    AttemptJob,
+    attempt_seed,
+    check_workspace,
+    episode_fields,
+    generate,
+    source_demos,
+)
+from mimicgen_pipe.store import read_store, write_store
 from stages import add_selection_arguments, stage_params
 
 
@@ -48,39 +52,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         help="run exactly this many attempts (fixed_attempts mode), whatever generate.mode says",
     )
-
-
-WORKSPACE_SCENES = 8  # scenes sampled to check that the arm can reach the workspace
-IK_ABORT_AFTER = 50  # stop when this many attempts in a row all failed at IK
-
-
-def source_demos(store: EpisodeStore, objects: tuple[str, ...]) -> SourceDemos:
-    """The parsed store's arrays in the generator's form (4x4 world poses)."""
-    return SourceDemos(
-        target_poses=store.poses("target_pose"),
-        gripper=np.asarray(store.data["gripper"], np.float64),
-        object_poses={o: store.poses(f"object_poses/{o}") for o in objects},
-        episode_ends=store.episode_ends,
-        term_index=np.asarray(store.episodes["subtask_term_index"], np.int64),
-    )
-
-
-def episode_fields(attempts: list[Attempt], spec: TaskSpec) -> dict[str, np.ndarray]:
-    """meta/episodes of a generated (or failed) store, shaped also when it has none."""
-    n = len(attempts)
-    return {
-        "seed": np.asarray([a.seed for a in attempts], np.int64),
-        "success": np.asarray([a.success for a in attempts], bool),
-        "source_demo": np.asarray([a.source_demo for a in attempts], np.int64).reshape(
-            n, len(spec.subtasks)
-        ),
-        "initial_object_poses": np.asarray([a.initial_object_poses for a in attempts]).reshape(
-            n, len(spec.objects), 4, 4
-        ),
-        "initial_state": np.asarray([a.initial_state for a in attempts], np.float32),
-        "failure_reason": np.asarray([a.failed_subtask for a in attempts], np.int64),
-        "ik_failure": np.asarray([a.ik_failed for a in attempts], bool),
-    }
 
 
 def run(args: argparse.Namespace) -> None:
@@ -119,15 +90,7 @@ def run(args: argparse.Namespace) -> None:
         variant=args.variant,
     )
     seeds = [attempt_seed(g.seed, args.variant, i) for i in range(g.max_attempts)]
-    env = job.make_env()
-    scenes = reachable_scenes(env, job.sources, spec, args.variant, seeds[:WORKSPACE_SCENES])
-    env.close()
-    if scenes == 0:
-        raise InputError(
-            f"robot {g.robot!r} cannot reach the {args.variant} workspace of {params.task}: in "
-            f"none of {WORKSPACE_SCENES} sampled scenes does it have IK solutions for the "
-            "source demo's segments. Nothing was generated."
-        )
+    check_workspace(job, seeds, g.robot)
     # the same id for the same data-shaping params and input, whatever the worker count, so
     # that the stores stay byte-identical; readers check that kept, failed and metrics agree
     run = run_id(
@@ -141,48 +104,21 @@ def run(args: argparse.Namespace) -> None:
     if work.resumed:
         print(f"generate: resuming: {len(work.resumed)} finished blocks of attempts in {work.path}")
     guarantee = g.mode == "guarantee"
-    kept, failed, rows = [], [], []
-    t0 = time.perf_counter()
-    total = g.num_demos if guarantee else g.max_attempts
     bar = tqdm(
-        total=total,
+        total=g.num_demos if guarantee else g.max_attempts,
         desc=f"generate {params.task} {args.variant}",
         unit="demo" if guarantee else "attempt",
     )
-    results = run_attempts(job, seeds, stage_executor(params, "generate"), work)
+
+    def progress(attempt: Attempt, attempts: int, kept: int) -> None:
+        bar.update(1 if (attempt.success or not guarantee) else 0)
+        bar.set_postfix(attempts=attempts, dgr=f"{100 * kept / attempts:.1f}%")
+
+    executor = stage_executor(params, "generate")
     try:
-        if not (guarantee and g.num_demos == 0):
-            for seed, attempt, seconds in results:
-                rows.append(
-                    (seed, attempt.success, attempt.failed_subtask, seconds, attempt.ik_failed)
-                )
-                if len(rows) == IK_ABORT_AFTER and all(r[4] for r in rows):
-                    raise RuntimeError(
-                        f"generate: all of the first {IK_ABORT_AFTER} attempts failed at IK "
-                        f"(robot {g.robot!r} cannot reach the targets); nothing was written"
-                    )
-                (kept if attempt.success else failed).append(attempt)
-                bar.update(1 if (attempt.success or not guarantee) else 0)
-                bar.set_postfix(attempts=len(rows), dgr=f"{100 * len(kept) / len(rows):.1f}%")
-                if guarantee and len(kept) == g.num_demos:
-                    break
-    except Interrupted as exc:
-        exc.detail = (
-            f"after {len(rows)} attempts ({len(kept)} of {g.num_demos} demos)"
-            if guarantee
-            else f"after {len(rows)} of {g.max_attempts} attempts"
-        ) + f"; finished blocks kept in {work.path} (the same command resumes)"
-        raise
+        result = generate(job, seeds, executor, work, g.num_demos if guarantee else None, progress)
     finally:
-        results.close()
         bar.close()
-    wall = time.perf_counter() - t0
-    if guarantee and len(kept) < g.num_demos:
-        raise RuntimeError(
-            f"generate: {len(kept)} of {g.num_demos} demos after generate.max_attempts="
-            f"{g.max_attempts} attempts (DGR {100 * len(kept) / max(1, len(rows)):.1f}%); "
-            "raise max_attempts or check the source demos. Nothing was written."
-        )
     attrs = {
         "run_id": run,
         "task": params.task,
@@ -196,24 +132,14 @@ def run(args: argparse.Namespace) -> None:
         "subtasks": [s.name for s in spec.subtasks],
         "params": data_params(params, "generate"),
     }
-    # an attempt stopped at IK before its first step has no steps to keep; it is counted in
-    # the metrics only
-    failed = [a for a in failed if len(a.steps)]
-    success = np.array([r[1] for r in rows], bool)
-    metrics = generation_metrics(
-        success,
-        np.array([r[2] for r in rows]),
-        np.array([r[3] for r in rows]),
-        [s.name for s in spec.subtasks],
-        np.array([r[4] for r in rows], bool),
-    )
-    metrics.update(
-        wall_seconds=wall, steps=int(sum(len(a.steps["actions"]) for a in kept + failed))
-    )
+    metrics = result.metrics
     # written aside, then renamed failed store, metrics, kept store: a reader that finds the
     # new kept store finds the rest of its run beside it
     with output_set(failed_out, metrics_path, out) as (tmp_failed, tmp_metrics, tmp_out):
-        for attempts, path, kind in ((kept, tmp_out, "generated"), (failed, tmp_failed, "failed")):
+        for attempts, path, kind in (
+            (result.kept, tmp_out, "generated"),
+            (result.failed, tmp_failed, "failed"),
+        ):
             steps = [a.steps for a in attempts]
             write_store(path, kind, steps, episode_fields(attempts, spec), attrs)
         write_metrics(tmp_metrics, {"run_id": run, **metrics})

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.outputs import atomic_directory, claim
@@ -81,7 +82,10 @@ def run(args: argparse.Namespace) -> None:
         png = Path(args.plots) / layout.heatmap_file(params.task, v).name
         if png.exists():
             images[png.name], heatmaps[v] = png.read_bytes(), png.name
-    blocks = build_report(params.task, variants, this_run, ablations, paper, heatmaps)
+    spec = envs.task_spec(params.backend, params.task)
+    blocks = build_report(
+        params.task, spec.paper_task, variants, this_run, ablations, paper, heatmaps
+    )
     t, m = params.transfer, this_run.metrics
     blocks += transfer_blocks(
         [

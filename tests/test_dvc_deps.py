@@ -44,10 +44,11 @@ def imported_modules(path: Path) -> set[str]:
     return {m for m in out if module_file(m) is not None}
 
 
-def closure(stage_module: str, backend: str) -> set[Path]:
-    """Files a stage's code runs from: its module, the packages it sits in, and everything
-    they import, following only the chosen back end's package under envs/."""
-    todo = [stage_module, "stages"]
+def closure(stage_module: str, backend: str, tasks: tuple[str, ...] = ()) -> set[Path]:
+    """Files a stage's code runs from: its module, the packages it sits in, the files of
+    the ``tasks`` it runs (looked up by name at run time), and everything they import,
+    following only the chosen back end's package under envs/."""
+    todo = [stage_module, "stages"] + [f"envs.{backend}.tasks.{t}" for t in tasks]
     seen: set[str] = set()
     while todo:
         name = todo.pop()
@@ -68,6 +69,14 @@ def stages() -> list[tuple[str, dict]]:
     return list(doc["stages"].items())
 
 
+def tasks_of(stage: dict) -> dict[str, str]:
+    """The task names a stage's command runs, by the dvc.yaml variable that names them."""
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    if "${item.task}" in stage["cmd"]:
+        return {t: "${item.task}" for t in params["transfer"]["tasks"]}
+    return {params["task"]: "${task}"}
+
+
 def backend_of(stage: dict) -> str:
     """The back end a stage runs on: transfer.backend where its command says so, else the
     main pipeline's."""
@@ -80,12 +89,25 @@ def backend_of(stage: dict) -> str:
 def test_stage_code_deps_cover_every_module_it_imports(name, stage):
     words = stage["cmd"].split()
     assert words[0] == "mimicgen-pipe", f"{name}: cmd does not run mimicgen-pipe"
+    tasks = tasks_of(stage)
     deps = [d for d in stage["deps"] if "$" not in d]
-    files = closure(f"stages.{words[1]}", backend_of(stage))
+    deps += [d.replace(var, t) for d in stage["deps"] for t, var in tasks.items() if var in d]
+    files = closure(f"stages.{words[1]}", backend_of(stage), tuple(tasks))
     uncovered = sorted(
         str(f) for f in files if not any(f == Path(d) or Path(d) in f.parents for d in deps)
     )
     assert not uncovered, f"dvc.yaml stage {name}: add to deps: {uncovered}"
+
+
+def test_a_task_file_is_a_dep_of_its_own_stages_only():
+    """Adding or editing one task's file re-runs that task's stages, not every task's."""
+    for name, stage in stages():
+        backend = backend_of(stage)
+        assert f"envs/{backend}" not in stage["deps"], f"{name}: depends on every task file"
+        files = closure(f"stages.{stage['cmd'].split()[1]}", backend)
+        assert not any(f.parent.name == "tasks" and f.name != "__init__.py" for f in files), (
+            f"{name}: a task file is imported statically"
+        )
 
 
 def test_the_closure_follows_lazy_imports():

@@ -59,7 +59,7 @@ def test_closed_loop_tracking_converges(env):
 
 def test_variants_sample_inside_their_bounds(env):
     for variant in ("D0", "D1"):
-        bounds = env.spec.reset_bounds[variant]
+        bounds = env.spec.reset_variants[variant].bounds
         xs = []
         for seed in range(30):
             env.reset(seed=seed, variant=variant)

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import envs
 from mimicgen_pipe import poses
 from mimicgen_pipe.coverage import reset_bounds, support_coverage, uniform_coverage
 from mimicgen_pipe.errors import InputError
@@ -30,7 +31,7 @@ from mimicgen_pipe.report import (
     render_markdown,
 )
 from mimicgen_pipe.store import read_store
-from mimicgen_pipe.taskspec import ObjectBounds, SubtaskSpec, TaskSpec
+from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
 from tests.test_cli_errors import run_bad
 
 REPO = Path(__file__).resolve().parents[1]
@@ -148,18 +149,13 @@ def test_uniform_coverage_is_the_expected_share_of_filled_bins():
 
 def test_reset_bounds_missing_from_the_task_spec_are_one_clear_error():
     b = ObjectBounds((0, 1), (0, 1), (0, 1))
-    spec = TaskSpec(
-        "t",
-        ("a", "b"),
-        (SubtaskSpec("s", "a", "sig"), SubtaskSpec("e", "b", None)),
-        {"D0": {"a": b, "b": b}, "D1": {"a": b}},
-        horizon=10,
-    )
+    subtasks = (SubtaskSpec("s", "a", "sig"), SubtaskSpec("e", "b", None))
+    spec = TaskSpec("t", ("a", "b"), subtasks, {"D0": ResetVariant({"a": b, "b": b})}, 10)
     assert reset_bounds(spec, "D0") == [b, b]
-    with pytest.raises(InputError, match="reset bounds of variant D1 lack object"):
-        reset_bounds(spec, "D1")
     with pytest.raises(InputError, match="no reset bounds for variant 'D2'"):
         reset_bounds(spec, "D2")
+    with pytest.raises(ValueError, match="variant D1 lacks bounds of"):
+        TaskSpec("t", ("a", "b"), subtasks, {"D1": ResetVariant({"a": b})}, 10)
 
 
 # --- report -------------------------------------------------------------------------------
@@ -181,7 +177,7 @@ def gen_metrics(dgr, attempts=200):
 
 def test_paper_entries_are_unambiguous_for_matching():
     paper = load_paper_results(PAPER)
-    assert paper.task_names["stack_cube"] == "Stack"
+    assert envs.task_spec("maniskill", "stack_cube").paper_task == "Stack"
     groups = {}
     for e in paper.entries:
         assert e.table and e.value >= 0
@@ -195,7 +191,7 @@ def test_paper_entries_are_unambiguous_for_matching():
 def test_report_shows_missing_metrics_and_never_invents_rows():
     paper = load_paper_results(PAPER)
     run = Run("this run", Params(), {"generate_stack_cube_D1": gen_metrics(93.0, 1075)})
-    md = render_markdown(build_report("stack_cube", ["D0", "D1"], run, [], paper, {}))
+    md = render_markdown(build_report("stack_cube", "Stack", ["D0", "D1"], run, [], paper, {}))
     lines = md.splitlines()
     d0 = next(ln for ln in lines if ln.startswith("| D0 | "))
     d1 = next(ln for ln in lines if ln.startswith("| D1 | "))
@@ -215,7 +211,7 @@ def test_report_shows_missing_metrics_and_never_invents_rows():
         "episodes": 50,
         "seeds": 3,
     }
-    md = render_markdown(build_report("stack_cube", ["D0", "D1"], run, [], paper, {}))
+    md = render_markdown(build_report("stack_cube", "Stack", ["D0", "D1"], run, [], paper, {}))
     row = next(ln for ln in md.splitlines() if ln.startswith("| generated D1"))
     assert row == (
         "| generated D1 | D1 | 96.0 ± 1.5 | 90.0 ± 2.0 | 50 × 3 "
@@ -239,7 +235,7 @@ def test_report_ablations_show_deltas_against_the_base_and_the_papers_direction(
         Run("seed_2", with_settings(seed=2), {stem: gen_metrics(89.0)}),
     ]
     this = Run("this run", Params(), {})
-    blocks = build_report("stack_cube", ["D1"], this, runs, paper, {})
+    blocks = build_report("stack_cube", "Stack", ["D1"], this, runs, paper, {})
     tables = [b for b in blocks if isinstance(b, Table)]
     ablation = next(t for t in tables if t.columns[0] == "run")
     rows = {r[0]: r for r in ablation.rows}

@@ -1,7 +1,8 @@
-"""ManiSkill3 / SAPIEN back end (CPU PhysX, pd_ee_delta_pose)."""
+"""ManiSkill3 / SAPIEN back end (CPU PhysX, pd_ee_delta_pose); tasks one file each under
+envs/maniskill/tasks/."""
 
+from envs.maniskill import tasks
 from envs.maniskill.tasks import ROBOTS as PANDA_ROBOTS
-from envs.maniskill.tasks import TASKS
 from mimicgen_pipe.errors import InputError
 
 # the Panda (envs/maniskill/env.py) and the xArm6 with the Franka hand (envs/maniskill/xarm6.py)
@@ -29,4 +30,4 @@ def source_episodes(env, num_demos, seed, from_file, work_dir):
     return source.source_episodes(env, num_demos, seed, from_file, work_dir)
 
 
-__all__ = ["ROBOTS", "TASKS", "check_robot", "make_env", "source_episodes"]
+__all__ = ["ROBOTS", "check_robot", "make_env", "source_episodes", "tasks"]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import dataclasses
+import math
 import os
 
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
@@ -10,19 +10,11 @@ os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from mani_skill.envs.tasks import StackCubeEnv  # noqa: E402
-from mani_skill.utils.registration import register_env  # noqa: E402
+from mani_skill.utils.registration import REGISTERED_ENVS, register_env  # noqa: E402
 from mani_skill.utils.structs.pose import Pose  # noqa: E402
 
-from envs.maniskill.tasks import (  # noqa: E402
-    D1_MAX_REACH,
-    D1_MIN_DIST,
-    D1_X,
-    D1_Y,
-    ROBOT_BASE_XY,
-    ROBOTS,
-    TASKS,
-)
+from envs import load_task  # noqa: E402
+from envs.maniskill.tasks import ROBOTS, ManiSkillTask  # noqa: E402
 from mimicgen_pipe import poses  # noqa: E402
 from mimicgen_pipe.controller import (  # noqa: E402
     DeltaPoseController,
@@ -30,20 +22,67 @@ from mimicgen_pipe.controller import (  # noqa: E402
     target_poses_to_actions,
 )
 from mimicgen_pipe.errors import InputError  # noqa: E402
+from mimicgen_pipe.taskspec import ResetVariant  # noqa: E402
 
 
-def _yaw_quats(n: int) -> torch.Tensor:
-    yaw = torch.rand(n) * 2 * torch.pi
-    q = torch.zeros(n, 4)
-    q[:, 0], q[:, 3] = torch.cos(yaw / 2), torch.sin(yaw / 2)
-    return q
+def draw_planar(
+    variant: ResetVariant, objects: tuple[str, ...], n: int, base_xy: tuple[float, float]
+) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """Planar initial poses of ``objects`` for ``n`` parallel scenes, drawn from ``variant``
+    with torch's generator (ManiSkill seeds it per episode): per object in order, (n, 2) world
+    x, y [m] uniform in its bounds, redrawn while farther than ``variant.max_reach`` from
+    ``base_xy`` or closer than ``variant.min_distance`` to an object drawn before it; then
+    per object (n,) yaw [rad] uniform in its bounds."""
+    base = torch.tensor(base_xy)
+    xys: list[torch.Tensor] = []
+    for name in objects:
+        b = variant.bounds[name]
+        lo = torch.tensor([b.x[0], b.y[0]])
+        span = torch.tensor([b.x[1] - b.x[0], b.y[1] - b.y[0]])
+
+        def reject(xy: torch.Tensor) -> torch.Tensor:
+            bad = torch.zeros(len(xy), dtype=torch.bool)
+            if variant.max_reach is not None:
+                bad |= torch.linalg.norm(xy - base, dim=1) > variant.max_reach
+            for other in xys:
+                bad |= torch.linalg.norm(xy - other, dim=1) < variant.min_distance
+            return bad
+
+        xy = lo + torch.rand(n, 2) * span
+        for _ in range(1000):  # rejection sampling; the accepted area is most of the box
+            bad = reject(xy)
+            if not bad.any():
+                break
+            xy[bad] = lo + torch.rand(int(bad.sum()), 2) * span
+        else:
+            raise RuntimeError(f"reset: no room for {name} (rejection sampling did not converge)")
+        xys.append(xy)
+    # a full turn is drawn as rand * 2 pi exactly, whatever the bounds' arithmetic gives
+    yaws = [
+        b.yaw[0] + torch.rand(n) * 2 * torch.pi * ((b.yaw[1] - b.yaw[0]) / (2 * math.pi))
+        for b in (variant.bounds[o] for o in objects)
+    ]
+    return xys, yaws
 
 
-@register_env(TASKS["stack_cube"].env_id, max_episode_steps=200)
-class MimicGenStackCubeEnv(StackCubeEnv):
-    """StackCube with reset variants: ``reset(options={"variant": "D1"})``; D0 is the
-    parent's own reset distribution (see envs/maniskill/tasks.py for the bounds)."""
+def set_planar_poses(
+    actors, xys: list[torch.Tensor], yaws: list[torch.Tensor], heights: list[float]
+) -> None:
+    """Put each actor at its (n, 2) x, y and height [m] (world), turned by its (n,) yaw
+    [rad] about world z."""
+    for actor, xy, yaw, z in zip(actors, xys, yaws, heights, strict=True):
+        xyz = torch.zeros(len(xy), 3)
+        xyz[:, :2], xyz[:, 2] = xy, z
+        q = torch.zeros(len(xy), 4)
+        q[:, 0], q[:, 3] = torch.cos(yaw / 2), torch.sin(yaw / 2)
+        actor.set_pose(Pose.create_from_pq(p=xyz, q=q))
 
+
+class VariantResets:
+    """Mixed into a ManiSkill task env: ``reset(options={"variant": "D1"})`` draws the scene
+    from the task's variant; ManiSkill's own reset for a native one (D0)."""
+
+    task: ManiSkillTask
     variant = "D0"
 
     def reset(self, seed=None, options=None):
@@ -52,37 +91,31 @@ class MimicGenStackCubeEnv(StackCubeEnv):
         return super().reset(seed=seed, options=options)
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
-        if self.variant == "D0":
-            return super()._initialize_episode(env_idx, options)
-        if self.variant != "D1":
+        variants = self.task.spec.reset_variants
+        if self.variant not in variants:
             raise ValueError(f"unknown variant {self.variant}")
+        if variants[self.variant].native:
+            return super()._initialize_episode(env_idx, options)
         with torch.device(self.device):
-            b = len(env_idx)
-            self.table_scene.initialize(env_idx)
-            lo = torch.tensor([D1_X[0], D1_Y[0]])
-            span = torch.tensor([D1_X[1] - D1_X[0], D1_Y[1] - D1_Y[0]])
-            base = torch.tensor(ROBOT_BASE_XY)
+            self.task.initialize(self, env_idx, variants[self.variant])
 
-            def sample(reject) -> torch.Tensor:
-                xy = lo + torch.rand(b, 2) * span
-                for _ in range(1000):  # rejection sampling; the accepted area is most of the box
-                    bad = reject(xy)
-                    if not bad.any():
-                        return xy
-                    xy[bad] = lo + torch.rand(int(bad.sum()), 2) * span
-                raise RuntimeError("D1 reset: rejection sampling did not converge")
+    def native_initialize(self, env_idx: torch.Tensor, options: dict | None = None) -> None:
+        """ManiSkill's own _initialize_episode of the task."""
+        super()._initialize_episode(env_idx, options or {})
 
-            def too_far(xy: torch.Tensor) -> torch.Tensor:
-                return torch.linalg.norm(xy - base, dim=1) > D1_MAX_REACH
 
-            a_xy = sample(too_far)
-            b_xy = sample(
-                lambda xy: too_far(xy) | (torch.linalg.norm(xy - a_xy, dim=1) < D1_MIN_DIST)
-            )
-            for actor, xy in ((self.cubeA, a_xy), (self.cubeB, b_xy)):
-                xyz = torch.zeros(b, 3)
-                xyz[:, :2], xyz[:, 2] = xy, 0.02
-                actor.set_pose(Pose.create_from_pq(p=xyz, q=_yaw_quats(b)))
+_VARIANT_CLASSES: dict[str, type] = {}
+
+
+def variant_env_class(task: ManiSkillTask) -> type:
+    """ManiSkill's env class of ``task`` with the reset variants, registered (once per
+    process) as ``task.env_id``."""
+    if task.env_id not in _VARIANT_CLASSES:
+        base = REGISTERED_ENVS[task.base_env_id].cls
+        cls = type(f"MimicGen{base.__name__}", (VariantResets, base), {"task": task})
+        register_env(task.env_id, max_episode_steps=task.spec.horizon)(cls)
+        _VARIANT_CLASSES[task.env_id] = cls
+    return _VARIANT_CLASSES[task.env_id]
 
 
 def _pose_of(raw_pose: torch.Tensor) -> np.ndarray:
@@ -109,22 +142,24 @@ class ManiSkillEnv:
     backend = "maniskill"
     control_mode = "pd_ee_delta_pose"
     control_freq = 20
-    # robot name -> ManiSkill agent uid, and task -> registered env id; another arm's env
-    # (envs/maniskill/xarm6.py) swaps in its own
+    # robot name -> ManiSkill agent uid; another arm's env (envs/maniskill/xarm6.py) swaps in
+    # its own, and its own env_id_for
     agent_uids = {r: r for r in ROBOTS}
-    env_ids = {name: t.env_id for name, t in TASKS.items()}
+
+    @staticmethod
+    def env_id_for(task: ManiSkillTask) -> str:
+        """The registered env id of ``task`` (with the reset variants) for this arm."""
+        return variant_env_class(task).task.env_id
 
     def __init__(self, task: str = "stack_cube", robot: str = "panda") -> None:
         if robot not in self.agent_uids:
             known = ", ".join(self.agent_uids)
             raise InputError(f"robot {robot!r}: unknown for maniskill (known: {known})")
-        if task not in self.env_ids:
-            raise InputError(f"task {task!r}: unknown for maniskill with robot {robot!r}")
-        self.task = dataclasses.replace(TASKS[task], env_id=self.env_ids[task])
+        self.task = load_task("maniskill", task)
         self.spec = self.task.spec
         self.robot = robot
         self._env = gym.make(
-            self.task.env_id,
+            self.env_id_for(self.task),
             obs_mode="none",
             reward_mode="none",
             control_mode=self.control_mode,
@@ -201,7 +236,7 @@ class ManiSkillEnv:
         return np.asarray(self._robot.qpos, np.float64)[self._finger_index]
 
     def subtask_signals(self) -> dict[str, bool]:
-        return {name: bool(self._info[key]) for name, key in self.task.signals.items()}
+        return self.task.signals(self._u, self._info)
 
     def is_success(self) -> bool:
         return bool(self._info["success"])

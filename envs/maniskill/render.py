@@ -18,11 +18,12 @@ class Renderer:
         import torch
         from mani_skill.utils import sapien_utils
 
+        from envs import load_task
         from envs.maniskill.env import ManiSkillEnv
 
         self._torch = torch
         self._env = gym.make(
-            ManiSkillEnv.env_ids[task],
+            ManiSkillEnv.env_id_for(load_task("maniskill", task)),
             obs_mode="none",
             reward_mode="none",
             control_mode=ManiSkillEnv.control_mode,

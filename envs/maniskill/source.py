@@ -17,7 +17,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from envs.maniskill.tasks import TASKS
+from envs import load_task
 from mimicgen_pipe.errors import InputError
 
 CONTROL_MODE = "pd_ee_delta_pose"
@@ -59,7 +59,7 @@ def read_trajectory_file(path: str | os.PathLike, task: str) -> list[TrajectoryF
             f"{meta_path}: env_info.env_kwargs.control_mode is {mode!r}, expected {CONTROL_MODE!r} "
             "(convert with python -m mani_skill.trajectory.replay_trajectory -c pd_ee_delta_pose)"
         )
-    spec = TASKS[task]
+    spec = load_task("maniskill", task)
     if env_info.get("env_id") not in (spec.env_id, spec.base_env_id):
         raise InputError(
             f"{meta_path}: env_info.env_id is {env_info.get('env_id')!r}, expected "
@@ -159,7 +159,7 @@ def _plan_child(
     from mani_skill.examples.motionplanning.panda.run import MP_SOLUTIONS
     from mani_skill.utils.wrappers.record import RecordEpisode
 
-    spec = TASKS[task]
+    spec = load_task("maniskill", task)
     env = gym.make(
         spec.base_env_id,
         obs_mode="none",
@@ -177,7 +177,7 @@ def _plan_child(
         record_reward=False,
         save_on_reset=False,
     )
-    solve = MP_SOLUTIONS[spec.base_env_id]
+    solve = MP_SOLUTIONS[spec.planner or spec.base_env_id]
     kept = failed = 0
     for s in range(int(seed), int(seed) + int(max_tries)):
         try:

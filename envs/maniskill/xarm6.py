@@ -8,8 +8,8 @@ fingers mounted on link6) and written to a content-addressed file under the syst
 dir. The TCP link ``panda_hand_tcp`` lies 0.1034 m ahead of the hand, as on ManiSkill's Panda,
 so a TCP pose recorded with the Panda means the same grasp on the xArm6.
 
-StackCube with this arm: ``MimicGenStackCubeXArm6-v1`` (our MimicGenStackCubeEnv, same
-reset variants) with the robot base at x = -0.4: from the Panda's -0.615 the xArm6 with the
+StackCube with this arm: ``MimicGenStackCubeXArm6-v1`` (stack_cube's env with its reset
+variants) with the robot base at x = -0.4: from the Panda's -0.615 the xArm6 with the
 0.16 m hand cannot reach StackCube's far cube positions.
 """
 
@@ -29,7 +29,9 @@ from mani_skill.envs.tasks import StackCubeEnv  # noqa: E402
 from mani_skill.utils import sapien_utils  # noqa: E402
 from mani_skill.utils.registration import register_env  # noqa: E402
 
-from envs.maniskill.env import ManiSkillEnv, MimicGenStackCubeEnv  # noqa: E402
+from envs import load_task  # noqa: E402
+from envs.maniskill.env import ManiSkillEnv, variant_env_class  # noqa: E402
+from envs.maniskill.tasks import ManiSkillTask  # noqa: E402
 from envs.urdf import (  # noqa: E402
     FINGER_JOINTS,
     FINGER_OPEN,
@@ -38,6 +40,7 @@ from envs.urdf import (  # noqa: E402
     load_urdf,
     urdf_file,
 )
+from mimicgen_pipe.errors import InputError  # noqa: E402
 
 ROBOT = "xarm6"
 AGENT_UID = "xarm6_pandahand"
@@ -111,8 +114,8 @@ class XArm6PandaHand(Panda):
 
 
 @register_env(ENV_IDS["stack_cube"], max_episode_steps=200)
-class MimicGenStackCubeXArm6Env(MimicGenStackCubeEnv):
-    """MimicGenStackCubeEnv (same D0/D1 cube resets) with the xArm6 based at BASE_XYZ."""
+class MimicGenStackCubeXArm6Env(variant_env_class(load_task("maniskill", "stack_cube"))):
+    """stack_cube's env (same D0/D1 cube resets) with the xArm6 based at BASE_XYZ."""
 
     SUPPORTED_ROBOTS = [AGENT_UID]
 
@@ -145,4 +148,11 @@ class XArm6ManiSkillEnv(ManiSkillEnv):
     """ManiSkillEnv on the xArm6 (see the module docstring); the protocol is the parent's."""
 
     agent_uids = {ROBOT: AGENT_UID}
-    env_ids = ENV_IDS
+
+    @staticmethod
+    def env_id_for(task: ManiSkillTask) -> str:
+        if task.spec.name not in ENV_IDS:
+            raise InputError(
+                f"task {task.spec.name!r}: the xarm6 on maniskill has {', '.join(ENV_IDS)} only"
+            )
+        return ENV_IDS[task.spec.name]

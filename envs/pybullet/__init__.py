@@ -1,12 +1,13 @@
 """PyBullet back end (headless DIRECT, 20 Hz end-effector delta-pose control); arms from
-pybullet_data with the Franka hand (envs/pybullet/robots.py)."""
+pybullet_data with the Franka hand (envs/pybullet/robots.py); tasks one file each under
+envs/pybullet/tasks/."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from envs.pybullet import tasks
 from envs.pybullet.robots import ROBOTS, robot_spec, robot_urdf_text
-from envs.pybullet.tasks import TASKS
 from mimicgen_pipe.errors import InputError
 
 
@@ -49,4 +50,4 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     return kept, failed
 
 
-__all__ = ["ROBOTS", "TASKS", "check_robot", "make_env", "source_episodes"]
+__all__ = ["ROBOTS", "check_robot", "make_env", "source_episodes", "tasks"]

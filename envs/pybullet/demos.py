@@ -1,4 +1,5 @@
-"""Scripted source demonstrators for the PyBullet tasks.
+"""Scripted source demonstrators for the PyBullet tasks: the moves a task file's
+``demonstrate`` is written in (``Teleop``, ``pick``, ``place``), and ``demonstrate`` itself.
 
 Waypoints are placed in object frames (grasp at the object's centre, place relative to the
 object below, insert over the hole), and a demo moves between them through the same
@@ -15,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.pybullet.tasks import CUBE_HALF, FIXTURE_HEIGHT, PEG_HALF_HEIGHT
 from mimicgen_pipe import poses
 
 OPEN, CLOSED = 1.0, -1.0
@@ -52,7 +52,7 @@ def _down(pos: np.ndarray, yaw: float) -> np.ndarray:
     return out
 
 
-class _Teleop:
+class Teleop:
     """Moves the env's TCP along straight lines at a chosen speed, recording actions."""
 
     def __init__(self, env, rng: np.random.Generator) -> None:
@@ -90,7 +90,7 @@ class _Teleop:
         return float(self.rng.uniform(lo, hi))
 
 
-def _pick(op: _Teleop, obj: np.ndarray, grasp_z: float) -> None:
+def pick(op: Teleop, obj: np.ndarray, grasp_z: float) -> None:
     """Approach above ``obj``, descend, close; ``grasp_z``: TCP height above the object's
     frame origin [m]."""
     rng = op.rng
@@ -102,8 +102,8 @@ def _pick(op: _Teleop, obj: np.ndarray, grasp_z: float) -> None:
     op.grip(CLOSED, int(rng.integers(6, 11)))
 
 
-def _place(
-    op: _Teleop, held: str, goal: np.ndarray, lift: float, clearance: float, descent: float
+def place(
+    op: Teleop, held: str, goal: np.ndarray, lift: float, clearance: float, descent: float
 ) -> None:
     """Carry object ``held`` so that its frame reaches ``goal`` (world pose; its yaw taken mod
     90 degrees): lift the TCP to ``lift`` [m], move over the goal with the object
@@ -130,33 +130,11 @@ def _place(
     op.move(back, op.speed(0.01, 0.02))
 
 
-def _on(lower: np.ndarray, gap: float) -> np.ndarray:
-    goal = lower.copy()
-    goal[2, 3] += 2 * CUBE_HALF + gap
-    return goal
-
-
 def demonstrate(env, seed: int, variant: str = "D0") -> Demo:
-    """One scripted demo of ``env``'s task from reset ``seed``."""
+    """One scripted demo of ``env``'s task (its file's ``demonstrate``) from reset ``seed``."""
     env.reset(seed=seed, variant=variant)
     initial_state = env.get_state()
     rng = np.random.default_rng([seed, 1])  # the demonstrator's own stream, apart from the reset
-    op = _Teleop(env, rng)
-    task = env.spec.name
-    if task in ("stack", "stack_three"):
-        _pick(op, env.object_poses()["cubeA"], 0.0)
-        _place(op, "cubeA", _on(env.object_poses()["cubeB"], 0.004), 0.12, 0.03, 0.006)
-        if task == "stack_three":
-            _pick(op, env.object_poses()["cubeC"], 0.0)
-            _place(op, "cubeC", _on(env.object_poses()["cubeA"], 0.004), 0.16, 0.03, 0.006)
-    elif task == "square_peg":
-        # held 5 mm above its centre of mass, the peg does not pivot between the fingers
-        _pick(op, env.object_poses()["peg"], 0.005)
-        goal = env.object_poses()["hole"].copy()
-        # released with its bottom 20 mm down the hole, the fingertips above the fixture; it
-        # drops to the bottom
-        goal[2, 3] += PEG_HALF_HEIGHT + FIXTURE_HEIGHT - 0.02
-        _place(op, "peg", goal, 0.17, FIXTURE_HEIGHT + 0.03, 0.004)
-    else:
-        raise ValueError(f"no demonstrator for task {task!r}")
+    op = Teleop(env, rng)
+    env.task.demonstrate(op, env)
     return Demo(seed, initial_state, np.asarray(op.actions, np.float32), env.is_success())

@@ -7,6 +7,7 @@ import pybullet as p
 import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
 
+from envs import load_task
 from envs.pybullet.robots import (
     HOME_TCP,
     TCP_LINK,
@@ -14,7 +15,7 @@ from envs.pybullet.robots import (
     robot_spec,
     robot_urdf_file,
 )
-from envs.pybullet.tasks import ROBOT_BASE_XY, TASKS, on_top, peg_inserted, sample_object_poses
+from envs.pybullet.tasks import ROBOT_BASE_XY, sample_object_poses
 from envs.urdf import FINGER_JOINTS, FINGER_OPEN
 from mimicgen_pipe import poses
 from mimicgen_pipe.controller import (
@@ -65,7 +66,7 @@ class PyBulletEnv:
         robot: str = "panda",
         base_xy: tuple[float, float] = ROBOT_BASE_XY,
     ) -> None:
-        self.task = TASKS[task]
+        self.task = load_task("pybullet", task)
         self.spec = self.task.spec
         self.robot = robot
         spec = robot_spec(robot)
@@ -212,7 +213,8 @@ class PyBulletEnv:
     def gripper_state(self) -> np.ndarray:
         return np.array([s[0] for s in self._sim.getJointStates(self._robot, self._fingers)])
 
-    def _grasped(self, name: str) -> bool:
+    def grasped(self, name: str) -> bool:
+        """Both fingers touch object ``name``."""
         body = self._bodies[name]
         return all(
             self._sim.getContactPoints(self._robot, body, linkIndexA=f) for f in self._fingers
@@ -220,31 +222,11 @@ class PyBulletEnv:
 
     def subtask_signals(self) -> dict[str, bool]:
         if self._signals is None:
-            obj = self.object_poses()
-            name = self.spec.name
-            if name == "square_peg":
-                self._signals = {
-                    "grasp_peg": self._grasped("peg"),
-                    "peg_inserted": peg_inserted(obj["peg"], obj["hole"]),
-                }
-            else:
-                self._signals = {
-                    "grasp_cubeA": self._grasped("cubeA"),
-                    "cubeA_on_cubeB": on_top(obj["cubeA"], obj["cubeB"]),
-                }
-                if name == "stack_three":
-                    self._signals["grasp_cubeC"] = self._grasped("cubeC")
-                    self._signals["cubeC_on_cubeA"] = on_top(obj["cubeC"], obj["cubeA"])
+            self._signals = self.task.signals(self)
         return self._signals
 
     def is_success(self) -> bool:
-        s = self.subtask_signals()
-        name = self.spec.name
-        if name == "square_peg":
-            return s["peg_inserted"]
-        if name == "stack":
-            return s["cubeA_on_cubeB"] and not s["grasp_cubeA"]
-        return s["cubeA_on_cubeB"] and s["cubeC_on_cubeA"] and not s["grasp_cubeC"]
+        return self.task.success(self.subtask_signals())
 
     def get_state(self) -> np.ndarray:
         """[arm q, finger q, arm and finger velocities, then per object position, quaternion

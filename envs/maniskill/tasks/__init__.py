@@ -1,0 +1,51 @@
+"""ManiSkill tasks, one file each in this folder (``<task>.py`` defines ``TASK``, a
+ManiSkillTask); this module holds what they share (envs.load_task finds them by name). Free of
+simulator imports: a task file imports ManiSkill only inside its functions.
+
+World frame: ManiSkill's, the table top is z = 0 with its centre at the origin; the Panda's
+base is at ``task.robot_base_xy``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from mimicgen_pipe.taskspec import TaskSpec
+
+FULL_YAW = (0.0, 2 * math.pi)
+PANDA_BASE_XY = (-0.615, 0.0)  # where ManiSkill's table-top tasks put the Panda
+# [m] horizontally from the base: beyond ~0.78 m the Panda cannot reach the table top-down
+PANDA_REACH = 0.76
+ROBOTS = ("panda",)
+
+
+@dataclass(frozen=True)
+class ManiSkillTask:
+    """Everything task-specific on the ManiSkill back end.
+
+    spec: the generator's view. base_env_id: ManiSkill's env id (its planner and its reset
+    are ManiSkill's); our env with the reset variants is registered as ``env_id``.
+    objects: spec object name -> attribute of the ManiSkill env holding the actor.
+    signals: (env, info) -> {signal name: bool}: the subtask signals from ManiSkill's
+        ``evaluate()`` info and the unwrapped env (e.g. ``env.agent.is_grasping``).
+    initialize: (env, env_idx, variant) -> None: place the scene for a variant that is not
+        ManiSkill's own (variant.native); called in place of ManiSkill's
+        ``_initialize_episode``, which it may call as ``env.native_initialize(env_idx)``.
+    robot_base_xy: [m] the Panda's base in the world, for the variants' reach cut.
+    planner: key of ManiSkill's motion-planning solutions (default: base_env_id).
+    """
+
+    spec: TaskSpec
+    base_env_id: str
+    objects: dict[str, str]
+    signals: Callable[[Any, dict], dict[str, bool]]
+    initialize: Callable[[Any, Any, Any], None]
+    robot_base_xy: tuple[float, float] = PANDA_BASE_XY
+    planner: str | None = None
+
+    @property
+    def env_id(self) -> str:
+        return f"MimicGen{self.base_env_id}"

@@ -1,0 +1,71 @@
+"""Every task file of every back end: its spec is consistent with what its env provides
+(signals, objects, observation keys) and its reset variants sample inside the bounds that
+coverage bins. Task files are found by name, as the stages find them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import envs
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.observations import observation_keys
+
+TASKS = [(b, t) for b in envs.BACKENDS for t in envs.task_names(b)]
+IDS = [f"{b}-{t}" for b, t in TASKS]
+
+
+@pytest.mark.parametrize(("backend", "task"), TASKS, ids=IDS)
+def test_spec_is_consistent(backend, task):
+    spec = envs.task_spec(backend, task)
+    assert spec.name == task and spec.paper_task, "a task says which paper task it stands for"
+    assert "D0" in spec.variants
+    assert set(spec.default_obs_keys) <= set(observation_keys(spec.objects))
+    for sub in spec.subtasks:
+        assert sub.reference_object in spec.objects
+    for name, variant in spec.reset_variants.items():
+        for o in spec.objects:
+            b = variant.bounds[o]
+            assert b.x[0] < b.x[1] and b.y[0] < b.y[1] and b.yaw[0] < b.yaw[1], (name, o)
+
+
+def test_lookups_name_the_valid_choices():
+    with pytest.raises(InputError, match=r"task 'stack_sphere': unknown .*known: .*stack_cube"):
+        envs.task_spec("maniskill", "stack_sphere")
+    spec = envs.task_spec("maniskill", "stack_cube")
+    with pytest.raises(InputError, match=r"variant 'D7': unknown for task stack_cube \(known: D0"):
+        envs.check_variant(spec, "D7")
+    with pytest.raises(InputError, match=r"'peg_pos' not an observation of task stack_cube"):
+        envs.check_obs_keys(spec, ["eef_pos", "peg_pos"], "train.obs_keys")
+
+
+def _yaw(pose: np.ndarray) -> float:
+    return math.atan2(pose[1, 0], pose[0, 0])
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize(("backend", "task"), TASKS, ids=IDS)
+def test_env_provides_the_spec_and_samples_inside_its_variants(backend, task):
+    env = envs.make_env(backend, task)
+    try:
+        spec = env.spec
+        assert set(spec.signals) <= set(env.subtask_signals()), "every term signal is provided"
+        for name, variant in spec.reset_variants.items():
+            for seed in range(12):
+                env.reset(seed=seed, variant=name)
+                poses = env.object_poses()
+                assert set(poses) == set(spec.objects)
+                for o, pose in poses.items():
+                    b = variant.bounds[o]
+                    assert b.x[0] - 1e-6 <= pose[0, 3] <= b.x[1] + 1e-6, (name, o, seed)
+                    assert b.y[0] - 1e-6 <= pose[1, 3] <= b.y[1] + 1e-6, (name, o, seed)
+                    yaw = (_yaw(pose) - b.yaw[0]) % (2 * math.pi) + b.yaw[0]
+                    assert yaw <= b.yaw[1] + 1e-4 or b.yaw[1] - b.yaw[0] >= 2 * math.pi - 1e-6
+                if not variant.native:
+                    xy = [p[:2, 3] for p in poses.values()]
+                    gaps = [np.linalg.norm(a - c) for i, a in enumerate(xy) for c in xy[i + 1 :]]
+                    assert min(gaps, default=1.0) >= variant.min_distance - 1e-6
+    finally:
+        env.close()
