@@ -46,7 +46,10 @@ def reset_bounds(spec: TaskSpec, variant: str) -> list[ObjectBounds]:
     for o in spec.objects:
         for dim in DIMENSIONS:
             lo, hi = getattr(per_object[o], dim)
-            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            # yaw may be fixed (lo == hi: one bin); a position range may not
+            if not (
+                math.isfinite(lo) and math.isfinite(hi) and (lo < hi or dim == "yaw" and lo == hi)
+            ):
                 raise InputError(
                     f"task {spec.name}: reset bounds of {o} in {variant}: {dim} range "
                     f"({lo}, {hi}) is empty"
@@ -72,7 +75,9 @@ def bin_index(
     bin and counted apart)."""
     lo = np.array([[getattr(b, d)[0] for d in DIMENSIONS] for b in bounds])
     hi = np.array([[getattr(b, d)[1] for d in DIMENSIONS] for b in bounds])
-    frac = (values - lo) / (hi - lo)
+    span = hi - lo
+    # a fixed dimension (span 0, e.g. a yaw the reset does not vary) has one bin
+    frac = np.where(span > 0, (values - lo) / np.where(span > 0, span, 1.0), 0.0)
     outside = ((values < lo - _OUTSIDE_TOL) | (values > hi + _OUTSIDE_TOL)).any(axis=(-1, -2))
     index = np.clip(np.floor(frac * bins).astype(np.int64), 0, bins - 1)
     return index, outside
@@ -84,7 +89,8 @@ class Coverage:
 
     counts: (n_objects, bins, bins, bins) episodes per object bin (x, y, yaw).
     object_coverage: (n_objects,) share [%] of non-empty object bins.
-    joint_filled: non-empty joint bins; joint_total: bins**(3 * n_objects).
+    joint_filled: non-empty joint bins; joint_total: bins**(3 * n_objects), a dimension the
+    reset does not vary (fixed yaw) counting as one bin.
     episodes: episodes counted; outside: those with a value outside the bounds.
     """
 
@@ -116,11 +122,13 @@ def support_coverage(
     for o in range(n_obj):
         np.add.at(counts[o], tuple(index[:, o].T), 1)
     joint = {tuple(row) for row in index.reshape(len(index), 3 * n_obj).tolist()}
+    varied = [sum(getattr(b, d)[0] < getattr(b, d)[1] for d in DIMENSIONS) for b in bounds]
+    object_bins = np.array([bins**k for k in varied])
     return Coverage(
         counts=counts,
-        object_coverage=100.0 * (counts > 0).reshape(n_obj, -1).mean(axis=1),
+        object_coverage=100.0 * (counts > 0).reshape(n_obj, -1).sum(axis=1) / object_bins,
         joint_filled=len(joint),
-        joint_total=bins ** (3 * n_obj),
+        joint_total=int(np.prod(object_bins)),
         episodes=len(index),
         outside=int(outside.sum()),
     )

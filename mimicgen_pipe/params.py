@@ -179,6 +179,21 @@ class TransferParams:
 
 
 @dataclass(frozen=True)
+class SuiteParams:
+    """The task suite (suite/dvc.yaml): every task x variant generated from its own source
+    demos, ``attempts`` fixed attempts each, on ``backend``, with action noise
+    ``action_noise``; the other generation knobs come from ``generate``. The default 0.025
+    is the paper's sigma 0.05 in physical units: robosuite's OSC moves 0.05 m per action
+    unit, ManiSkill's pd_ee_delta_pose 0.1 m, so both mean 2.5 mm per step."""
+
+    backend: Literal["maniskill", "pybullet"] = "maniskill"
+    tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
+    variants: list[str] = field(default_factory=lambda: ["D0", "D1", "D2"])
+    attempts: int = 200
+    action_noise: float = 0.025
+
+
+@dataclass(frozen=True)
 class Params:
     """task and backend: the main pipeline's task and simulator."""
 
@@ -191,6 +206,7 @@ class Params:
     train: TrainParams = field(default_factory=TrainParams)
     evaluate: EvaluateParams = field(default_factory=EvaluateParams)
     transfer: TransferParams = field(default_factory=TransferParams)
+    suite: SuiteParams = field(default_factory=SuiteParams)
     export: ExportParams = field(default_factory=ExportParams)
     render: RenderParams = field(default_factory=RenderParams)
     ray: RayParams = field(default_factory=RayParams)
@@ -225,6 +241,8 @@ _RANGES: dict[str, tuple[float, float]] = {
     "render.width": (16, 4096),
     "render.height": (16, 4096),
     "transfer.attempts": (1, 10_000_000),
+    "suite.attempts": (1, 10_000_000),
+    "suite.action_noise": (0.0, 1.0),
 }
 
 
@@ -246,6 +264,8 @@ _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "export.formats": _non_empty_unique,
     "transfer.variants": _non_empty_unique,
     "transfer.robots": _non_empty_unique,
+    "suite.tasks": _non_empty_unique,
+    "suite.variants": _non_empty_unique,
 }
 
 

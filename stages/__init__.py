@@ -31,11 +31,14 @@ def add_generated_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def check_variants(params: Params, path: str) -> None:
-    """InputError naming the params key when the main task (generate.variants) or a
-    robot-transfer task (transfer.variants) lacks one of the listed reset variants."""
+    """InputError naming the params key when the main task (generate.variants), a
+    robot-transfer task (transfer.variants) or a suite task (suite.variants) lacks one of
+    the listed reset variants."""
     t = params.transfer
     lists = [("generate.variants", params.backend, params.task, params.generate.variants)]
     lists += [("transfer.variants", t.backend, task, t.variants) for task in t.tasks]
+    u = params.suite
+    lists += [("suite.variants", u.backend, task, u.variants) for task in u.tasks]
     for key, backend, task, variants in lists:
         spec = envs.task_spec(backend, task)
         for v in variants:

@@ -52,6 +52,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         help="run exactly this many attempts (fixed_attempts mode), whatever generate.mode says",
     )
+    p.add_argument(
+        "--action-noise",
+        type=float,
+        help="sigma of the action noise, in place of generate.action_noise (the suite's own)",
+    )
 
 
 def run(args: argparse.Namespace) -> None:
@@ -61,6 +66,11 @@ def run(args: argparse.Namespace) -> None:
         if args.attempts < 1:
             raise InputError(f"--attempts {args.attempts}: expected a positive number")
         g = dataclasses.replace(g, mode="fixed_attempts", max_attempts=args.attempts)
+        params = dataclasses.replace(params, generate=g)
+    if args.action_noise is not None:
+        if not args.action_noise >= 0:
+            raise InputError(f"--action-noise {args.action_noise}: expected a number >= 0")
+        g = dataclasses.replace(g, action_noise=args.action_noise)
         params = dataclasses.replace(params, generate=g)
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)

@@ -19,6 +19,7 @@ from mimicgen_pipe.report import (
     load_paper_results,
     render_html,
     render_markdown,
+    suite_blocks,
     transfer_blocks,
     transfer_table,
     video_blocks,
@@ -93,6 +94,9 @@ def run(args: argparse.Namespace) -> None:
             transfer_table([params.task], variants, ["panda", *t.maniskill_robots], m),
         ]
     )
+    u = params.suite
+    specs = [envs.task_spec(u.backend, task) for task in u.tasks]
+    blocks += suite_blocks(specs, u.variants, this_run.metrics, paper)
     media = {}
     for v in variants:
         folder = layout.media_dir(params.task, v)

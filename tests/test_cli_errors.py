@@ -115,6 +115,11 @@ def test_every_stage_has_help(tmp_path, stage):
         ("task: stack_cube\nbackend: maniskill\n", "params.yaml: no stage sections"),
         (MINIMAL + "train: {obs_keys: []}\n", "train.obs_keys: expected at least one entry"),
         (
+            MINIMAL + "train: {obs_keys: [eef_pos, peg_pos]}\n",
+            "params.yaml: train.obs_keys: 'peg_pos' not an observation of task stack_cube "
+            "(known: eef_pos, eef_quat, gripper_qpos, cubeA_pos,",
+        ),
+        (
             MINIMAL + "generate: {variants: [D0, D7]}\n",
             "generate.variants: 'D7' is not a reset variant of stack_cube on maniskill "
             "(known: D0, D1)",

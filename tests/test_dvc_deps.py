@@ -64,16 +64,23 @@ def closure(stage_module: str, backend: str, tasks: tuple[str, ...] = ()) -> set
     return {module_file(m).relative_to(REPO) for m in seen}
 
 
+PIPELINES = ("dvc.yaml", "suite/dvc.yaml")  # the suite's stages run at the root (wdir ..)
+
+
 def stages() -> list[tuple[str, dict]]:
-    doc = yaml.safe_load((REPO / "dvc.yaml").read_text())
-    return list(doc["stages"].items())
+    out = []
+    for pipeline in PIPELINES:
+        doc = yaml.safe_load((REPO / pipeline).read_text())
+        out += list(doc["stages"].items())
+    return out
 
 
 def tasks_of(stage: dict) -> dict[str, str]:
     """The task names a stage's command runs, by the dvc.yaml variable that names them."""
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     if "${item.task}" in stage["cmd"]:
-        return {t: "${item.task}" for t in params["transfer"]["tasks"]}
+        section = "suite" if "${suite.backend}" in stage["cmd"] else "transfer"
+        return {t: "${item.task}" for t in params[section]["tasks"]}
     return {params["task"]: "${task}"}
 
 
@@ -82,7 +89,10 @@ def backend_of(stage: dict) -> str:
     main pipeline's."""
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     cmd = stage["cmd"]
-    return params["transfer"]["backend"] if "${transfer.backend}" in cmd else params["backend"]
+    for section in ("transfer", "suite"):
+        if "${" + section + ".backend}" in cmd:
+            return params[section]["backend"]
+    return params["backend"]
 
 
 @pytest.mark.parametrize("name,stage", stages(), ids=[n for n, _ in stages()])
@@ -90,8 +100,11 @@ def test_stage_code_deps_cover_every_module_it_imports(name, stage):
     words = stage["cmd"].split()
     assert words[0] == "mimicgen-pipe", f"{name}: cmd does not run mimicgen-pipe"
     tasks = tasks_of(stage)
-    deps = [d for d in stage["deps"] if "$" not in d]
-    deps += [d.replace(var, t) for d in stage["deps"] for t, var in tasks.items() if var in d]
+    backend = backend_of(stage)
+    deps = [d.replace("${suite.backend}", backend) for d in stage["deps"]]
+    deps = [d for d in deps if "$" not in d] + [
+        d.replace(var, t) for d in deps for t, var in tasks.items() if var in d
+    ]
     files = closure(f"stages.{words[1]}", backend_of(stage), tuple(tasks))
     uncovered = sorted(
         str(f) for f in files if not any(f == Path(d) or Path(d) in f.parents for d in deps)

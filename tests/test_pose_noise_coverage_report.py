@@ -388,3 +388,22 @@ def test_transfer_table_reads_each_arms_metrics():
     assert table.rows == (("stack (D0)", "95.0 (7/200 IK)", "78.5 (42/200 IK)", "missing"),)
     main = transfer_table(["stack_cube"], ["D0"], ["panda", "xarm6"], metrics)
     assert main.rows == (("stack_cube (D0)", "96.2 (0/1039 IK)", "missing"),)
+
+
+def test_a_fixed_yaw_counts_as_one_bin():
+    """An object whose reset does not vary its yaw (e.g. PullCubeTool's tool in D0) has
+    bins**2 object bins, and the joint total shrinks with it."""
+    fixed = ObjectBounds((0.0, 1.0), (0.0, 1.0), (0.3, 0.3))
+    free = ObjectBounds((0.0, 1.0), (0.0, 1.0), (0.0, 2 * math.pi))
+    rng = np.random.default_rng(0)
+    poses = np.tile(np.eye(4), (200, 2, 1, 1))
+    poses[:, :, :2, 3] = rng.uniform(0, 1, (200, 2, 2))
+    c, s = math.cos(0.3), math.sin(0.3)
+    poses[:, 0, :2, :2] = [[c, -s], [s, c]]  # the fixed yaw
+    yaw = rng.uniform(0, 2 * math.pi, 200)
+    poses[:, 1, 0, 0], poses[:, 1, 1, 0] = np.cos(yaw), np.sin(yaw)
+    poses[:, 1, 0, 1], poses[:, 1, 1, 1] = -np.sin(yaw), np.cos(yaw)
+    cov = support_coverage(poses, [fixed, free], bins=3)
+    assert cov.outside == 0 and cov.joint_total == 9 * 27
+    assert cov.object_coverage[0] == 100.0  # all 9 (x, y) bins hit by 200 draws
+    assert cov.counts[0, :, :, 1:].sum() == 0  # yaw in its single bin

@@ -28,7 +28,7 @@ def test_spec_is_consistent(backend, task):
     for name, variant in spec.reset_variants.items():
         for o in spec.objects:
             b = variant.bounds[o]
-            assert b.x[0] < b.x[1] and b.y[0] < b.y[1] and b.yaw[0] < b.yaw[1], (name, o)
+            assert b.x[0] < b.x[1] and b.y[0] < b.y[1] and b.yaw[0] <= b.yaw[1], (name, o)
 
 
 def test_lookups_name_the_valid_choices():
@@ -61,7 +61,7 @@ def test_env_provides_the_spec_and_samples_inside_its_variants(backend, task):
                     b = variant.bounds[o]
                     assert b.x[0] - 1e-6 <= pose[0, 3] <= b.x[1] + 1e-6, (name, o, seed)
                     assert b.y[0] - 1e-6 <= pose[1, 3] <= b.y[1] + 1e-6, (name, o, seed)
-                    yaw = (_yaw(pose) - b.yaw[0]) % (2 * math.pi) + b.yaw[0]
+                    yaw = (_yaw(pose) - b.yaw[0] + 1e-4) % (2 * math.pi) + b.yaw[0] - 1e-4
                     assert yaw <= b.yaw[1] + 1e-4 or b.yaw[1] - b.yaw[0] >= 2 * math.pi - 1e-6
                 if not variant.native:
                     xy = [p[:2, 3] for p in poses.values()]

@@ -66,16 +66,27 @@ def draw_planar(
 
 
 def set_planar_poses(
-    actors, xys: list[torch.Tensor], yaws: list[torch.Tensor], heights: list[float]
+    actors, xys: list[torch.Tensor], yaws: list[torch.Tensor], heights: list
 ) -> None:
-    """Put each actor at its (n, 2) x, y and height [m] (world), turned by its (n,) yaw
-    [rad] about world z."""
+    """Put each actor at its (n, 2) x, y and height [m] (a number or (n,); world), turned by
+    its (n,) yaw [rad] about world z."""
     for actor, xy, yaw, z in zip(actors, xys, yaws, heights, strict=True):
         xyz = torch.zeros(len(xy), 3)
         xyz[:, :2], xyz[:, 2] = xy, z
         q = torch.zeros(len(xy), 4)
         q[:, 0], q[:, 3] = torch.cos(yaw / 2), torch.sin(yaw / 2)
         actor.set_pose(Pose.create_from_pq(p=xyz, q=q))
+
+
+def redraw_planar(env, env_idx: torch.Tensor, variant: ResetVariant) -> None:
+    """A variant's scene the common way: ManiSkill's own reset of the task (table, robot,
+    goals), then every object of the task redrawn from ``variant`` (draw_planar) at the
+    height the task's reset gave it, turned by the drawn yaw about world z."""
+    env.native_initialize(env_idx)
+    task = env.task
+    xys, yaws = draw_planar(variant, task.spec.objects, len(env_idx), task.robot_base_xy)
+    actors = [getattr(env, task.objects[o]) for o in task.spec.objects]
+    set_planar_poses(actors, xys, yaws, [a.pose.p[:, 2].clone() for a in actors])
 
 
 class VariantResets:
@@ -97,7 +108,7 @@ class VariantResets:
         if variants[self.variant].native:
             return super()._initialize_episode(env_idx, options)
         with torch.device(self.device):
-            self.task.initialize(self, env_idx, variants[self.variant])
+            (self.task.initialize or redraw_planar)(self, env_idx, variants[self.variant])
 
     def native_initialize(self, env_idx: torch.Tensor, options: dict | None = None) -> None:
         """ManiSkill's own _initialize_episode of the task."""
@@ -205,12 +216,15 @@ class ManiSkillEnv:
         self._tcp = u.agent.tcp._objs[0]
         self._actors = {n: getattr(u, a)._objs[0] for n, a in self.task.objects.items()}
         self._state_actors = []
+        # the registry get_state_dict() reads (it also holds actors merged across parallel
+        # scenes, e.g. PegInsertionSide's peg, which scene.actors does not)
+        registry = u.scene.state_dict_registry
         for name in u.get_state_dict()["actors"]:
-            actor = u.scene.actors[name]
+            actor = registry.actors[name]
             body = actor._bodies[0] if actor.px_body_type == "dynamic" else None
             self._state_actors.append((actor._objs[0], body))
         self._state_arts = [
-            u.scene.articulations[n]._objs[0] for n in u.get_state_dict()["articulations"]
+            registry.articulations[n]._objs[0] for n in u.get_state_dict()["articulations"]
         ]
         robot = u.agent.robot
         self._robot = robot._objs[0]

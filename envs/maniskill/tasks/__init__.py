@@ -34,6 +34,8 @@ class ManiSkillTask:
     initialize: (env, env_idx, variant) -> None: place the scene for a variant that is not
         ManiSkill's own (variant.native); called in place of ManiSkill's
         ``_initialize_episode``, which it may call as ``env.native_initialize(env_idx)``.
+        None: envs.maniskill.env.redraw_planar (ManiSkill's reset, then every object
+        redrawn from the variant).
     robot_base_xy: [m] the Panda's base in the world, for the variants' reach cut.
     planner: key of ManiSkill's motion-planning solutions (default: base_env_id).
     """
@@ -42,7 +44,7 @@ class ManiSkillTask:
     base_env_id: str
     objects: dict[str, str]
     signals: Callable[[Any, dict], dict[str, bool]]
-    initialize: Callable[[Any, Any, Any], None]
+    initialize: Callable[[Any, Any, Any], None] | None = None
     robot_base_xy: tuple[float, float] = PANDA_BASE_XY
     planner: str | None = None
 

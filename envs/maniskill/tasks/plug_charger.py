@@ -1,0 +1,80 @@
+"""plug_charger (ManiSkill PlugCharger-v1; paper: Coffee): grasp the charger and plug its
+two pins into the wall receptacle, 0.5 mm of clearance a side. ManiSkill's evaluate() has
+no grasp signal; the agent's ``is_grasping(charger)`` is the first subtask's.
+
+Reset variants (world frame; the table centre is the origin, the Panda base at x = -0.615):
+- D0: ManiSkill's own: the charger in x in [-0.1, -0.026], y in [-0.2, 0.2], yaw +-60 deg;
+  the receptacle (10 cm above the table) in x in [0.01, 0.1], y in [-0.1, 0.1], yaw
+  180 +- 22.5 deg.
+- D1: the charger in x in [-0.2, -0.03], y in [-0.25, 0.25], yaw +-90 deg; the receptacle
+  in x in [0.0, 0.12], y in [-0.15, 0.15], yaw as D0.
+- D2: D1 with the receptacle's yaw 180 +- 45 deg.
+"""
+
+from __future__ import annotations
+
+import math
+
+from envs.maniskill.tasks import ManiSkillTask
+from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
+
+DEG = math.pi / 180
+BACK = 180 * DEG
+
+
+def signals(env, info: dict) -> dict[str, bool]:
+    return {"grasp_charger": bool(env.agent.is_grasping(env.charger))}
+
+
+def initialize(env, env_idx, variant: ResetVariant) -> None:
+    import sapien
+    from transforms3d.euler import euler2quat
+
+    from envs.maniskill.env import redraw_planar
+
+    redraw_planar(env, env_idx, variant)
+    # the goal follows the receptacle, as in ManiSkill's own reset
+    env.goal_pose = env.receptacle.pose * sapien.Pose(q=euler2quat(0, 0, math.pi))
+
+
+def _variant(receptacle_yaw: float) -> ResetVariant:
+    return ResetVariant(
+        {
+            "charger": ObjectBounds((-0.2, -0.03), (-0.25, 0.25), (-90 * DEG, 90 * DEG)),
+            "receptacle": ObjectBounds(
+                (0.0, 0.12), (-0.15, 0.15), (BACK - receptacle_yaw, BACK + receptacle_yaw)
+            ),
+        },
+        min_distance=0.08,
+    )
+
+
+TASK = ManiSkillTask(
+    spec=TaskSpec(
+        name="plug_charger",
+        objects=("charger", "receptacle"),
+        subtasks=(
+            SubtaskSpec("grasp_charger", "charger", "grasp_charger", (10, 15)),
+            SubtaskSpec("plug_in", "receptacle", None),
+        ),
+        reset_variants={
+            "D0": ResetVariant(
+                {
+                    "charger": ObjectBounds((-0.1, -0.026), (-0.2, 0.2), (-60 * DEG, 60 * DEG)),
+                    "receptacle": ObjectBounds(
+                        (0.01, 0.1), (-0.1, 0.1), (BACK - 22.5 * DEG, BACK + 22.5 * DEG)
+                    ),
+                },
+                native=True,
+            ),
+            "D1": _variant(22.5 * DEG),
+            "D2": _variant(45 * DEG),
+        },
+        horizon=200,
+        paper_task="Coffee",
+    ),
+    base_env_id="PlugCharger-v1",
+    objects={"charger": "charger", "receptacle": "receptacle"},
+    signals=signals,
+    initialize=initialize,
+)
