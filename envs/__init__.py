@@ -127,13 +127,14 @@ def source_episodes(
     seed: int,
     from_file: str | None,
     work_dir: Path,
-) -> tuple[list[SourceEpisode], int]:
-    """Up to ``num_demos`` source demos on ``env`` from the back end's demonstrator (or
-    ``from_file``'s: a robomimic ``.hdf5`` of this back end and task, e.g. one the export
-    stage wrote, or a file format of the back end's own), and how many the demonstrator
-    dropped as failures."""
+) -> tuple[list[SourceEpisode], int, int]:
+    """Up to ``num_demos`` source demos on ``env`` from the back end's demonstrator, drawn
+    from reset seeds seed, seed + 1, ... (or ``from_file``'s: a robomimic ``.hdf5`` of this
+    back end and task, e.g. one the export stage wrote, or a file format of the back end's
+    own), how many the demonstrator dropped as failures, and how many seeds it tried (0 for
+    a file)."""
     if from_file is not None and Path(from_file).suffix.lower() in (".hdf5", ".hdf"):
-        return _robomimic_episodes(backend, env, num_demos, from_file), 0
+        return _robomimic_episodes(backend, env, num_demos, from_file), 0, 0
     return _module(backend).source_episodes(env, num_demos, seed, from_file, work_dir)
 
 

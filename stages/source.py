@@ -25,6 +25,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--metrics", help="metrics JSON (default: metrics/source_<task>.json)")
 
 
+SOURCE_ROUNDS = 5  # demonstrator rounds at most, each for the demos still missing
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
@@ -34,25 +37,36 @@ def run(args: argparse.Namespace) -> None:
     metrics_path = Path(args.metrics or layout.metrics_file("source", params.task))
     claim(out, metrics_path)  # fails at once if another run writes them
     env = envs.make_env(params.backend, params.task, p.robot)
-    # beside the output, named as its temporaries, so that the next run removes it if this
-    # one is killed before it can
-    with tempfile.TemporaryDirectory(prefix=f".{out.name}.tmp-", dir=out.parent) as tmp:
-        print(f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)")
-        episodes, demonstrator_failures = envs.source_episodes(
-            params.backend, env, p.num_demos, p.seed, p.from_file, Path(tmp)
-        )
     kept, seeds, init_poses = [], [], []
-    replay_failures = 0
-    for ep in tqdm(episodes, desc="source: replaying demos", unit="demo"):
-        env.set_state(ep.initial_state)
-        obj = env.object_poses()
-        steps, success = replay_actions(env, ep.initial_state, ep.actions, spec.objects)
-        if not success:
-            replay_failures += 1
-            continue
-        kept.append(steps)
-        seeds.append(ep.seed)
-        init_poses.append(np.stack([obj[o] for o in spec.objects]))
+    demonstrator_failures = replay_failures = seeds_tried = 0
+    print(f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)")
+    # demos that fail on replay are replaced by more from the demonstrator's next seeds
+    for _ in range(SOURCE_ROUNDS):
+        # beside the output, named as its temporaries, so that the next run removes it if
+        # this one is killed before it can
+        with tempfile.TemporaryDirectory(prefix=f".{out.name}.tmp-", dir=out.parent) as tmp:
+            episodes, failures, tried = envs.source_episodes(
+                params.backend,
+                env,
+                p.num_demos - len(kept),
+                p.seed + seeds_tried,
+                p.from_file,
+                Path(tmp),
+            )
+        demonstrator_failures += failures
+        seeds_tried += tried
+        for ep in tqdm(episodes, desc="source: replaying demos", unit="demo"):
+            env.set_state(ep.initial_state)
+            obj = env.object_poses()
+            steps, success = replay_actions(env, ep.initial_state, ep.actions, spec.objects)
+            if not success:
+                replay_failures += 1
+                continue
+            kept.append(steps)
+            seeds.append(ep.seed)
+            init_poses.append(np.stack([obj[o] for o in spec.objects]))
+        if len(kept) == p.num_demos or tried == 0:  # done, or a file: nothing more to draw
+            break
     if not kept:
         raise InputError(f"{p.from_file or params.task}: no source demo succeeded when replayed")
     from mimicgen_pipe.store import write_store
@@ -87,6 +101,7 @@ def run(args: argparse.Namespace) -> None:
                 "dropped_planner": int(demonstrator_failures),
                 "dropped_replay": int(replay_failures),
                 "mean_length": float(np.mean([len(s["actions"]) for s in kept])),
+                "demonstrator_seeds": int(seeds_tried),
             },
         )
     print(

@@ -93,10 +93,10 @@ def read_trajectory_file(path: str | os.PathLike, task: str) -> list[TrajectoryF
 
 def run_motion_planner(
     task: str, robot: str, num_demos: int, seed: int, out_dir: Path, max_tries: int
-) -> tuple[Path, int]:
+) -> tuple[Path, int, int]:
     """Run ManiSkill's motion-planning demonstrator until ``num_demos`` successes (or
     ``max_tries`` seeds), keeping successes only, then convert to pd_ee_delta_pose.
-    Returns (converted .h5, number of failed plans)."""
+    Returns (converted .h5, successful plans, failed plans)."""
     # The planners and the converter run in a child process: mplib and the converter's
     # multiprocessing are kept out of the stage's own process.
     code = (
@@ -121,7 +121,7 @@ def run_motion_planner(
     )
     if res.returncode != 0:
         raise RuntimeError(f"motion planning failed:\n{res.stderr[-4000:]}")
-    failed = int(res.stdout.strip().splitlines()[-1])
+    planned, failed = (int(w) for w in res.stdout.strip().splitlines()[-1].split())
     raw = out_dir / "planned.h5"
     conv = subprocess.run(
         [
@@ -147,12 +147,12 @@ def run_motion_planner(
     converted = sorted(out_dir.glob(f"planned.*{CONTROL_MODE}*.h5"))
     if not converted:
         raise RuntimeError(f"conversion wrote no file in {out_dir}")
-    return converted[0], failed
+    return converted[0], planned, failed
 
 
 def _plan_child(
     task: str, robot: str, num_demos: str, seed: str, out_dir: str, max_tries: str
-) -> int:
+) -> str:
     os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401  registers the tasks
@@ -190,7 +190,7 @@ def _plan_child(
         if kept == int(num_demos):
             break
     env.close()
-    return failed
+    return f"{kept} {failed}"
 
 
 def initial_state(env, episode: TrajectoryFileEpisode) -> np.ndarray:
@@ -217,16 +217,19 @@ def initial_state(env, episode: TrajectoryFileEpisode) -> np.ndarray:
 
 
 def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_dir: Path):
-    """The motion-planning demonstrator's demos (or ``from_file``'s) as SourceEpisodes, and
-    the number of failed plans."""
+    """The motion-planning demonstrator's demos from reset seeds seed, seed + 1, ... (or
+    ``from_file``'s) as SourceEpisodes, the number dropped (failed plans, and plans
+    ManiSkill's converter could not turn into pd_ee_delta_pose), and the seeds tried."""
     from envs import SourceEpisode
 
+    def episodes(path: Path) -> list:
+        eps = read_trajectory_file(path, env.spec.name)[:num_demos]
+        return [SourceEpisode(ep.seed, initial_state(env, ep), ep.actions) for ep in eps]
+
     if from_file is not None:
-        traj_file, planner_failures = Path(from_file), 0
-    else:
-        traj_file, planner_failures = run_motion_planner(
-            env.spec.name, env.robot, num_demos, seed, work_dir, 10 * num_demos
-        )
-    episodes = read_trajectory_file(traj_file, env.spec.name)[:num_demos]
-    out = [SourceEpisode(ep.seed, initial_state(env, ep), ep.actions) for ep in episodes]
-    return out, planner_failures
+        return episodes(Path(from_file)), 0, 0
+    traj_file, planned, failed = run_motion_planner(
+        env.spec.name, env.robot, num_demos, seed, work_dir, 10 * num_demos
+    )
+    out = episodes(traj_file)
+    return out, failed + planned - len(out), planned + failed

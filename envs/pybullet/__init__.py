@@ -24,7 +24,8 @@ def make_env(task: str, robot: str = "panda"):
 
 def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_dir: Path):
     """The scripted demonstrator's first ``num_demos`` successful demos from reset seeds
-    seed, seed + 1, ... (at most 10 x num_demos tries), and the number of failures."""
+    seed, seed + 1, ... (at most 10 x num_demos tries), the number of failures and the
+    seeds tried."""
     from tqdm import tqdm
 
     from envs import SourceEpisode
@@ -35,9 +36,10 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
             f"source.from_file={from_file!r}: trajectory files are read on the maniskill "
             "back end; pybullet records its source demos with its scripted demonstrator"
         )
-    kept, failed = [], 0
+    kept, failed, tried = [], 0, 0
     bar = tqdm(total=num_demos, desc=f"source: scripted demos of {env.spec.name}", unit="demo")
     for s in range(seed, seed + 10 * num_demos):
+        tried += 1
         demo = demonstrate(env, s)
         if demo.success:
             kept.append(SourceEpisode(s, demo.initial_state, demo.actions))
@@ -47,7 +49,7 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
         if len(kept) == num_demos:
             break
     bar.close()
-    return kept, failed
+    return kept, failed, tried
 
 
 __all__ = ["ROBOTS", "check_robot", "make_env", "source_episodes", "tasks"]
