@@ -169,6 +169,7 @@ class ManiSkillEnv:
         self.task = load_task("maniskill", task)
         self.spec = self.task.spec
         self.robot = robot
+        self.agent_uid = self.task.panda_uid if robot == "panda" else self.agent_uids[robot]
         self._env = gym.make(
             self.env_id_for(self.task),
             obs_mode="none",
@@ -176,10 +177,19 @@ class ManiSkillEnv:
             control_mode=self.control_mode,
             sim_backend="physx_cpu",
             render_backend="none",
-            robot_uids=self.agent_uids[robot],
+            robot_uids=self.agent_uid,
+            **self.task.env_kwargs,
         )
         self.unwrapped = self._env.unwrapped
         self._u = self.unwrapped
+        if self._u.reconfiguration_freq:
+            # the simulator objects held below would go stale at every reset, and a stored
+            # state would not carry what the rebuild drew
+            raise InputError(
+                f"task {task}: {self.task.base_env_id} rebuilds its scene every "
+                f"{self._u.reconfiguration_freq} resets; give it env_kwargs "
+                "reconfiguration_freq 0 in its task file"
+            )
         arm = self._u.agent.controller.controllers["arm"].config
         self.control_freq = int(self._u.control_freq)
         self.controller = DeltaPoseController(
@@ -201,7 +211,7 @@ class ManiSkillEnv:
 
     def rebuild(self) -> None:
         # PhysX keeps contact caches across plain resets; a reconfigure builds a new scene.
-        self._u.reset(seed=0, options={"variant": "D0", "reconfigure": True})
+        self._u.reset(seed=self.task.rebuild_seed, options={"variant": "D0", "reconfigure": True})
         self._bind()
         self._changed(self._u.evaluate())
 

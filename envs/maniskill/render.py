@@ -22,15 +22,17 @@ class Renderer:
         from envs.maniskill.env import ManiSkillEnv
 
         self._torch = torch
+        task = load_task("maniskill", task)
         self._env = gym.make(
-            ManiSkillEnv.env_id_for(load_task("maniskill", task)),
+            ManiSkillEnv.env_id_for(task),
             obs_mode="none",
             reward_mode="none",
             control_mode=ManiSkillEnv.control_mode,
             sim_backend="physx_cpu",
             render_backend="cpu",
             render_mode="rgb_array",
-            robot_uids=ManiSkillEnv.agent_uids[robot],
+            robot_uids=task.panda_uid if robot == "panda" else ManiSkillEnv.agent_uids[robot],
+            **task.env_kwargs,
             human_render_camera_configs={
                 "width": width, "height": height, "fov": FOV,
                 "pose": sapien_utils.look_at(list(EYE), list(TARGET)),

@@ -41,10 +41,12 @@ def _initial_state(group: h5py.Group) -> dict:
     return out
 
 
-def read_trajectory_file(path: str | os.PathLike, task: str) -> list[TrajectoryFileEpisode]:
+def read_trajectory_file(
+    path: str | os.PathLike, task: str, allow_empty: bool = False
+) -> list[TrajectoryFileEpisode]:
     """Read and check every episode of a ManiSkill trajectory file before any simulation.
     Raises InputError naming the file and key for a wrong control mode, env, missing key,
-    wrong action shape or non-finite value."""
+    wrong action shape or non-finite value, or (unless ``allow_empty``) no episodes."""
     path = Path(path)
     meta_path = path.with_suffix(".json")
     if not path.exists():
@@ -86,7 +88,7 @@ def read_trajectory_file(path: str | os.PathLike, task: str) -> list[TrajectoryF
                 raise InputError(f"{path}: {name}: NaN or infinite action or state")
             seed = ep.get("episode_seed", ep.get("reset_kwargs", {}).get("seed", -1))
             episodes.append(TrajectoryFileEpisode(name, int(seed), actions, state))
-    if not episodes:
+    if not episodes and not allow_empty:
         raise InputError(f"{path}: no episodes")
     return episodes
 
@@ -166,7 +168,8 @@ def _plan_child(
         control_mode="pd_joint_pos",
         sim_backend="physx_cpu",
         render_backend="none",
-        robot_uids=robot,
+        robot_uids=spec.panda_uid if robot == "panda" else robot,
+        **spec.env_kwargs,
     )
     env = RecordEpisode(
         env,
@@ -222,8 +225,8 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     ManiSkill's converter could not turn into pd_ee_delta_pose), and the seeds tried."""
     from envs import SourceEpisode
 
-    def episodes(path: Path) -> list:
-        eps = read_trajectory_file(path, env.spec.name)[:num_demos]
+    def episodes(path: Path, allow_empty: bool = False) -> list:
+        eps = read_trajectory_file(path, env.spec.name, allow_empty)[:num_demos]
         return [SourceEpisode(ep.seed, initial_state(env, ep), ep.actions) for ep in eps]
 
     if from_file is not None:
@@ -231,5 +234,5 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     traj_file, planned, failed = run_motion_planner(
         env.spec.name, env.robot, num_demos, seed, work_dir, 10 * num_demos
     )
-    out = episodes(traj_file)
+    out = episodes(traj_file, allow_empty=True)  # the converter may keep none of the plans
     return out, failed + planned - len(out), planned + failed

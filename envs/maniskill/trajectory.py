@@ -95,6 +95,6 @@ def env_info(env, max_episode_steps: int) -> dict:
             "obs_mode": "none",
             "control_mode": env.control_mode,
             "sim_backend": "physx_cpu",
-            "robot_uids": env.agent_uids[env.robot],
+            "robot_uids": env.agent_uid,
         },
     }

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from mimicgen_pipe.taskspec import TaskSpec
@@ -38,6 +38,13 @@ class ManiSkillTask:
         redrawn from the variant).
     robot_base_xy: [m] the Panda's base in the world, for the variants' reach cut.
     planner: key of ManiSkill's motion-planning solutions (default: base_env_id).
+    env_kwargs: more keyword arguments of ManiSkill's env, for every env of the task (our
+        env, the planner's and so ManiSkill's converter, which rebuilds the planner's).
+    panda_uid: ManiSkill's agent for our robot "panda": the Panda, or the same arm with a
+        wrist camera ("panda_wristcam", never rendered here) where the task resets only that.
+    rebuild_seed: the seed a scene is rebuilt (reconfigured) with; a task that draws its
+        objects' geometry when it builds the scene gets the same geometry from the same
+        seed. 2022 is the one ManiSkill builds every env with at creation.
     """
 
     spec: TaskSpec
@@ -47,6 +54,9 @@ class ManiSkillTask:
     initialize: Callable[[Any, Any, Any], None] | None = None
     robot_base_xy: tuple[float, float] = PANDA_BASE_XY
     planner: str | None = None
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    panda_uid: str = "panda"
+    rebuild_seed: int = 0
 
     @property
     def env_id(self) -> str:

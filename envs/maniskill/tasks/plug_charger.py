@@ -76,5 +76,6 @@ TASK = ManiSkillTask(
     base_env_id="PlugCharger-v1",
     objects={"charger": "charger", "receptacle": "receptacle"},
     signals=signals,
+    panda_uid="panda_wristcam",  # the only robot the task supports and resets
     initialize=initialize,
 )
