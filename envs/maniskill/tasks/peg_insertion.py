@@ -1,0 +1,75 @@
+"""peg_insertion (ManiSkill PegInsertionSide-v1; paper: Square, Threading): grasp a peg
+lying on the table and insert it sideways into the hole of a box, 3 mm of clearance. The
+peg is ManiSkill's draw for seed 2022 (its range: half-length 8.5-12.5 cm, radius 1.5-2.5 cm):
+17.1 cm long, radius 2.0 cm, into a hole of radius 2.3 cm, the same in every episode.
+ManiSkill's evaluate() has no grasp signal; the agent's ``is_grasping(peg)`` is the first
+subtask's.
+
+Reset variants (world frame; the table centre is the origin, the Panda base at x = -0.615;
+yaw of the peg's long axis and of the box about world z):
+- D0: ManiSkill's own: the peg in x in [-0.1, 0.1], y in [-0.3, 0.0], yaw 90 +- 60 deg;
+  the box in x in [-0.05, 0.05], y in [0.2, 0.4], yaw 90 +- 22.5 deg.
+- D1: the peg in x in [-0.15, 0.15], y in [-0.35, 0.0], yaw 90 +- 90 deg; the box in x
+  in [-0.1, 0.1], y in [0.15, 0.4], yaw as D0.
+- D2: D1 with the box's yaw 90 +- 45 deg.
+"""
+
+from __future__ import annotations
+
+import math
+
+from envs.maniskill.tasks import ManiSkillTask
+from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
+
+DEG = math.pi / 180
+UP = 90 * DEG
+
+
+def signals(env, info: dict) -> dict[str, bool]:
+    return {"grasp_peg": bool(env.agent.is_grasping(env.peg))}
+
+
+def _variant(box_yaw: float) -> ResetVariant:
+    return ResetVariant(
+        {
+            "peg": ObjectBounds((-0.15, 0.15), (-0.35, 0.0), (UP - 90 * DEG, UP + 90 * DEG)),
+            "box": ObjectBounds((-0.1, 0.1), (0.15, 0.4), (UP - box_yaw, UP + box_yaw)),
+        },
+        min_distance=0.2,
+    )
+
+
+TASK = ManiSkillTask(
+    spec=TaskSpec(
+        name="peg_insertion",
+        objects=("peg", "box"),
+        subtasks=(
+            SubtaskSpec("grasp_peg", "peg", "grasp_peg", (10, 15)),
+            SubtaskSpec("insert_peg", "box", None),
+        ),
+        reset_variants={
+            "D0": ResetVariant(
+                {
+                    "peg": ObjectBounds((-0.1, 0.1), (-0.3, 0.0), (UP - 60 * DEG, UP + 60 * DEG)),
+                    "box": ObjectBounds(
+                        (-0.05, 0.05), (0.2, 0.4), (UP - 22.5 * DEG, UP + 22.5 * DEG)
+                    ),
+                },
+                native=True,
+            ),
+            "D1": _variant(22.5 * DEG),
+            "D2": _variant(45 * DEG),
+        },
+        horizon=200,
+        paper_task="Square",
+    ),
+    base_env_id="PegInsertionSide-v1",
+    objects={"peg": "peg", "box": "box"},
+    signals=signals,
+    panda_uid="panda_wristcam",  # the only robot the task supports and resets
+    # ManiSkill draws the peg's length and radius when it builds the scene, and by default
+    # rebuilds it at every reset; built once (at creation, seed 2022) the peg is the same in
+    # the planner's env, ManiSkill's converter and ours, and a stored state replays exactly
+    env_kwargs={"reconfiguration_freq": 0},
+    rebuild_seed=2022,
+)
