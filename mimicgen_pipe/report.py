@@ -740,7 +740,7 @@ def suite_blocks(
                     ours,
                     failures,
                     per_attempt,
-                    ref[0].cite() if ref else MISSING,
+                    ref[0].cite() if ref else "– (none in the paper)",
                 )
             )
     columns = ("task (variant)", "paper task", "DGR % (kept/attempts)", "task failures per subtask",
