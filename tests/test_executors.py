@@ -128,6 +128,7 @@ def same_stores(work: Path, name: str) -> None:
 
 
 @pytest.mark.sim
+@pytest.mark.slow
 def test_local_two_workers_and_ray_write_the_same_stores(work):
     """Also with numpy's BLAS told to use one thread (as Ray workers are: OMP_NUM_THREADS=1)
     where the reference run had the machine's default, its core count."""
@@ -172,7 +173,7 @@ def test_changed_params_do_not_reuse_the_blocks_of_another_run(work):
     """Blocks of a killed run with seed 3 are left in the work directory; a run with seed
     4 replaces them and writes what a fresh seed-4 run writes."""
     out = work / "data/reseeded/stack_D0.zarr"
-    generate(work, "fresh4", "generate: {workers: 1, seed: 4}\n")
+    generate(work, "fresh4", "generate: {workers: 2, seed: 4}\n")
     (work / "reseeded.yaml").write_text(PARAMS + "generate: {workers: 1, seed: 3}\n")
     blocks = work_dir_of(out)
     proc = start(work, "generate", "--params", "reseeded.yaml", "--variant", "D0", "--parsed",
@@ -184,7 +185,7 @@ def test_changed_params_do_not_reuse_the_blocks_of_another_run(work):
         time.sleep(0.05)
     os.kill(proc.pid, signal.SIGKILL)
     proc.communicate(timeout=30)
-    res = generate(work, "reseeded", "generate: {workers: 1, seed: 4}\n")
+    res = generate(work, "reseeded", "generate: {workers: 2, seed: 4}\n")
     assert "resuming" not in res.stdout
     for store in STORES:
         assert tree_digest(work / f"data/reseeded/{store}") == tree_digest(

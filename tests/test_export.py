@@ -161,7 +161,16 @@ def test_robomimic_file_reads_back_as_source_demos(tmp_path):
     [
         (["--formats", "robomimic,hdf6"], "export format 'hdf6': unknown (known: robomimic"),
         (
-            ["--formats", "maniskill", "--store", "pb.zarr", "--task", "stack"],
+            [
+                "--formats",
+                "maniskill",
+                "--store",
+                "pb.zarr",
+                "--backend",
+                "pybullet",
+                "--task",
+                "stack",
+            ],  # fmt: skip
             "cannot export as maniskill: a pybullet",
         ),
         (["--formats", "robomimic", "--store", "nostate.zarr"], "no data/env_state"),

@@ -1,7 +1,8 @@
 """The suite's ManiSkill tasks end to end, small: ManiSkill's motion planner gives source
 demos that convert to pd_ee_delta_pose, replay to success in our env and parse into the
 task's subtasks; a few generated attempts succeed and their episodes succeed again when
-replayed from their stored initial state (needs SAPIEN and mplib; marked ``sim``)."""
+replayed from their stored initial state (needs SAPIEN and mplib; marked ``sim`` and
+``slow``: about a minute per task)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import yaml
 from mimicgen_pipe.store import read_store
 from tests.conftest import REPO, cli
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 SUITE = yaml.safe_load((REPO / "params.yaml").read_text())["suite"]
 

@@ -142,7 +142,8 @@ def test_train_and_evaluate_refuse_bad_input_before_work(pipeline):
         TINY.replace("num_demos: 4\n", "num_demos: 4\n  obs_keys: [eef_pos, cube_pose]\n")
     )
     res = cli("train", "--params", "keys.yaml", "--data", "D1", cwd=pipeline, check=False)
-    assert res.returncode == 2 and "['cube_pose'] not in the store" in res.stderr
+    assert res.returncode == 2, res.stderr
+    assert "train.obs_keys: 'cube_pose' not an observation of task stack_cube (known:" in res.stderr
 
     other = pipeline / "data/other/seed0/epoch00001.pt"
     model = BCRNN(PolicyConfig(("eef_pos", "cubeA_pos"), (3, 4), 7, hidden=4, layers=1))
