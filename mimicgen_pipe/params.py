@@ -184,13 +184,16 @@ class SuiteParams:
     demos, ``attempts`` fixed attempts each, on ``backend``, with action noise
     ``action_noise``; the other generation knobs come from ``generate``. The default 0.025
     is the paper's sigma 0.05 in physical units: robosuite's OSC moves 0.05 m per action
-    unit, ManiSkill's pd_ee_delta_pose 0.1 m, so both mean 2.5 mm per step."""
+    unit, ManiSkill's pd_ee_delta_pose 0.1 m, so both mean 2.5 mm per step.
+    object_transfer: tasks also generated on their O1 variant (paper F: another object,
+    the same source demos)."""
 
     backend: Literal["maniskill", "pybullet"] = "maniskill"
     tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
     variants: list[str] = field(default_factory=lambda: ["D0", "D1", "D2"])
     attempts: int = 200
     action_noise: float = 0.025
+    object_transfer: list[str] = field(default_factory=list)
 
 
 @dataclass(frozen=True)

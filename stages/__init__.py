@@ -39,6 +39,7 @@ def check_variants(params: Params, path: str) -> None:
     lists += [("transfer.variants", t.backend, task, t.variants) for task in t.tasks]
     u = params.suite
     lists += [("suite.variants", u.backend, task, u.variants) for task in u.tasks]
+    lists += [("suite.object_transfer", u.backend, task, ["O1"]) for task in u.object_transfer]
     for key, backend, task, variants in lists:
         spec = envs.task_spec(backend, task)
         for v in variants:

@@ -199,6 +199,7 @@ class ManiSkillEnv:
             root_pose=_pose_of(self._u.agent.robot.pose.raw_pose),
         )
         self._info: dict = {}
+        self._scene: int | None = None  # the scene seed of a variant with its own objects
         self._eef: np.ndarray | None = None  # cached until the next step/reset/set_state
         self._objects: dict[str, np.ndarray] | None = None
         self._bind()
@@ -206,12 +207,21 @@ class ManiSkillEnv:
 
     # -- protocol -------------------------------------------------------------------------
     def reset(self, seed: int, variant: str) -> None:
+        scene = self.task.variant_scene_seeds.get(variant)
+        if scene != self._scene:  # a variant with other objects (O1) has its own scene
+            self._build(scene)
         self._u.reset(seed=int(seed), options={"variant": variant})
         self._changed(self._u.evaluate())
 
     def rebuild(self) -> None:
         # PhysX keeps contact caches across plain resets; a reconfigure builds a new scene.
-        self._u.reset(seed=self.task.rebuild_seed, options={"variant": "D0", "reconfigure": True})
+        self._build(self._scene)
+
+    def _build(self, scene: int | None) -> None:
+        """Build a new scene from seed ``scene`` (None: the task's rebuild_seed)."""
+        seed = self.task.rebuild_seed if scene is None else scene
+        self._u.reset(seed=seed, options={"variant": "D0", "reconfigure": True})
+        self._scene = scene
         self._bind()
         self._changed(self._u.evaluate())
 

@@ -45,6 +45,9 @@ class ManiSkillTask:
     rebuild_seed: the seed a scene is rebuilt (reconfigured) with; a task that draws its
         objects' geometry when it builds the scene gets the same geometry from the same
         seed. 2022 is the one ManiSkill builds every env with at creation.
+    variant_scene_seeds: variant -> the seed its scene is built with instead, for a task
+        whose geometry comes from that seed: object transfer (paper F, O1), another object
+        under the same source demos.
     """
 
     spec: TaskSpec
@@ -57,6 +60,7 @@ class ManiSkillTask:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     panda_uid: str = "panda"
     rebuild_seed: int = 0
+    variant_scene_seeds: dict[str, int] = field(default_factory=dict)
 
     @property
     def env_id(self) -> str:

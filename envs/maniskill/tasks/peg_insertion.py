@@ -12,6 +12,8 @@ yaw of the peg's long axis and of the box about world z):
 - D1: the peg in x in [-0.15, 0.15], y in [-0.35, 0.0], yaw 90 +- 90 deg; the box in x
   in [-0.1, 0.1], y in [0.15, 0.4], yaw as D0.
 - D2: D1 with the box's yaw 90 +- 45 deg.
+- O1 (object transfer, paper F): D0's distribution with another peg, ManiSkill's draw for
+  seed 10: half-length 11.6 cm (source 8.5), radius 1.5 cm (source 2.0), hole 1.8 cm.
 """
 
 from __future__ import annotations
@@ -39,6 +41,14 @@ def _variant(box_yaw: float) -> ResetVariant:
     )
 
 
+D0 = ResetVariant(
+    {
+        "peg": ObjectBounds((-0.1, 0.1), (-0.3, 0.0), (UP - 60 * DEG, UP + 60 * DEG)),
+        "box": ObjectBounds((-0.05, 0.05), (0.2, 0.4), (UP - 22.5 * DEG, UP + 22.5 * DEG)),
+    },
+    native=True,
+)
+
 TASK = ManiSkillTask(
     spec=TaskSpec(
         name="peg_insertion",
@@ -48,17 +58,10 @@ TASK = ManiSkillTask(
             SubtaskSpec("insert_peg", "box", None),
         ),
         reset_variants={
-            "D0": ResetVariant(
-                {
-                    "peg": ObjectBounds((-0.1, 0.1), (-0.3, 0.0), (UP - 60 * DEG, UP + 60 * DEG)),
-                    "box": ObjectBounds(
-                        (-0.05, 0.05), (0.2, 0.4), (UP - 22.5 * DEG, UP + 22.5 * DEG)
-                    ),
-                },
-                native=True,
-            ),
+            "D0": D0,
             "D1": _variant(22.5 * DEG),
             "D2": _variant(45 * DEG),
+            "O1": D0,
         },
         horizon=200,
         paper_task="Square",
@@ -72,4 +75,5 @@ TASK = ManiSkillTask(
     # the planner's env, ManiSkill's converter and ours, and a stored state replays exactly
     env_kwargs={"reconfiguration_freq": 0},
     rebuild_seed=2022,
+    variant_scene_seeds={"O1": 10},
 )
