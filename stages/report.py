@@ -96,7 +96,9 @@ def run(args: argparse.Namespace) -> None:
     )
     u = params.suite
     specs = [envs.task_spec(u.backend, task) for task in u.tasks]
-    blocks += suite_blocks(specs, u.variants, this_run.metrics, paper)
+    # O1 rows for the tasks generated on their object-transfer variant (the others lack it)
+    variants_shown = [*u.variants, *(["O1"] if u.object_transfer else [])]
+    blocks += suite_blocks(specs, variants_shown, this_run.metrics, paper)
     media = {}
     for v in variants:
         folder = layout.media_dir(params.task, v)
