@@ -116,10 +116,12 @@ def generate(
     work: WorkDir | None = None,
     num_demos: int | None = None,
     on_attempt: Callable[[Attempt, int, int], None] | None = None,
+    robot: str = "panda",
 ) -> GenerationResult:
     """Run attempts from ``seeds`` in order: all of them, or (``num_demos``, the paper's
     guarantee mode) until ``num_demos`` have succeeded. ``on_attempt(attempt, attempts so
-    far, successes so far)`` is called after each (e.g. a progress bar).
+    far, successes so far)`` is called after each (e.g. a progress bar). ``robot``: the arm
+    the job's env has, for the messages.
 
     Raises RuntimeError when the first IK_ABORT_AFTER attempts all failed at IK (the arm
     cannot reach the task) or when the seeds run out before ``num_demos`` successes; an
@@ -136,7 +138,7 @@ def generate(
                 if len(rows) == IK_ABORT_AFTER and all(r[3] for r in rows):
                     raise RuntimeError(
                         f"generate: all of the first {IK_ABORT_AFTER} attempts failed at IK "
-                        "(the robot cannot reach the targets); nothing was written"
+                        f"(robot {robot!r} cannot reach the targets); nothing was written"
                     )
                 (kept if attempt.success else failed).append(attempt)
                 if on_attempt is not None:

@@ -126,7 +126,9 @@ def run(args: argparse.Namespace) -> None:
 
     executor = stage_executor(params, "generate")
     try:
-        result = generate(job, seeds, executor, work, g.num_demos if guarantee else None, progress)
+        result = generate(
+            job, seeds, executor, work, g.num_demos if guarantee else None, progress, g.robot
+        )
     finally:
         bar.close()
     attrs = {

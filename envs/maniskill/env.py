@@ -160,7 +160,13 @@ class ManiSkillEnv:
     @staticmethod
     def env_id_for(task: ManiSkillTask) -> str:
         """The registered env id of ``task`` (with the reset variants) for this arm."""
-        return variant_env_class(task).task.env_id
+        variant_env_class(task)  # registers it
+        return task.env_id
+
+    @classmethod
+    def agent_uid_for(cls, task: ManiSkillTask, robot: str) -> str:
+        """ManiSkill's agent uid of ``robot`` in ``task`` (the task's own for the Panda)."""
+        return task.panda_uid if robot == "panda" else cls.agent_uids[robot]
 
     def __init__(self, task: str = "stack_cube", robot: str = "panda") -> None:
         if robot not in self.agent_uids:
@@ -169,7 +175,7 @@ class ManiSkillEnv:
         self.task = load_task("maniskill", task)
         self.spec = self.task.spec
         self.robot = robot
-        self.agent_uid = self.task.panda_uid if robot == "panda" else self.agent_uids[robot]
+        self.agent_uid = self.agent_uid_for(self.task, robot)
         self._env = gym.make(
             self.env_id_for(self.task),
             obs_mode="none",

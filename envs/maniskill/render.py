@@ -31,7 +31,7 @@ class Renderer:
             sim_backend="physx_cpu",
             render_backend="cpu",
             render_mode="rgb_array",
-            robot_uids=task.panda_uid if robot == "panda" else ManiSkillEnv.agent_uids[robot],
+            robot_uids=ManiSkillEnv.agent_uid_for(task, robot),
             **task.env_kwargs,
             human_render_camera_configs={
                 "width": width, "height": height, "fov": FOV,

@@ -94,10 +94,11 @@ def read_trajectory_file(
 
 
 def run_motion_planner(
-    task: str, robot: str, num_demos: int, seed: int, out_dir: Path, max_tries: int
+    task: str, agent_uid: str, num_demos: int, seed: int, out_dir: Path, max_tries: int
 ) -> tuple[Path, int, int]:
-    """Run ManiSkill's motion-planning demonstrator until ``num_demos`` successes (or
-    ``max_tries`` seeds), keeping successes only, then convert to pd_ee_delta_pose.
+    """Run ManiSkill's motion-planning demonstrator with ManiSkill agent ``agent_uid`` until
+    ``num_demos`` successes (or ``max_tries`` seeds), keeping successes only, then convert
+    to pd_ee_delta_pose.
     Returns (converted .h5, successful plans, failed plans)."""
     # The planners and the converter run in a child process: mplib and the converter's
     # multiprocessing are kept out of the stage's own process.
@@ -111,7 +112,7 @@ def run_motion_planner(
             "-c",
             code,
             task,
-            robot,
+            agent_uid,
             str(num_demos),
             str(seed),
             str(out_dir),
@@ -153,7 +154,7 @@ def run_motion_planner(
 
 
 def _plan_child(
-    task: str, robot: str, num_demos: str, seed: str, out_dir: str, max_tries: str
+    task: str, agent_uid: str, num_demos: str, seed: str, out_dir: str, max_tries: str
 ) -> str:
     os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
     import gymnasium as gym
@@ -168,7 +169,7 @@ def _plan_child(
         control_mode="pd_joint_pos",
         sim_backend="physx_cpu",
         render_backend="none",
-        robot_uids=spec.panda_uid if robot == "panda" else robot,
+        robot_uids=agent_uid,
         **spec.env_kwargs,
     )
     env = RecordEpisode(
@@ -232,7 +233,7 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     if from_file is not None:
         return episodes(Path(from_file)), 0, 0
     traj_file, planned, failed = run_motion_planner(
-        env.spec.name, env.robot, num_demos, seed, work_dir, 10 * num_demos
+        env.spec.name, env.agent_uid, num_demos, seed, work_dir, 10 * num_demos
     )
     out = episodes(traj_file, allow_empty=True)  # the converter may keep none of the plans
     return out, failed + planned - len(out), planned + failed
