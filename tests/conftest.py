@@ -62,3 +62,19 @@ def pipeline(tmp_path_factory) -> Path:
         cwd=work,
     )
     return work
+
+
+def replay_first_episodes(store, env, count: int) -> list[bool]:
+    """Task success of the first ``count`` episodes of a generated ``store`` (an
+    EpisodeStore), each replayed on ``env`` from its stored initial state."""
+    import numpy as np
+
+    from mimicgen_pipe.generation import replay_actions
+
+    starts = np.concatenate([[0], store.episode_ends[:-1]])
+    out = []
+    for k in range(min(count, len(starts))):
+        actions = np.asarray(store.data["actions"][starts[k] : store.episode_ends[k]])
+        state = np.asarray(store.episodes["initial_state"][k])
+        out.append(replay_actions(env, state, actions, env.spec.objects)[1])
+    return out

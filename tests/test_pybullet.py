@@ -13,7 +13,7 @@ import pytest
 from mimicgen_pipe import poses
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.kinematics import forward_kinematics, inverse_kinematics
-from tests.conftest import cli
+from tests.conftest import cli, replay_first_episodes
 
 pytest.importorskip("pybullet")
 
@@ -187,17 +187,14 @@ def test_transfer_end_to_end(transfer_run):
 
 @pytest.mark.sim
 def test_generated_episodes_succeed_when_replayed(transfer_run):
-    from envs.pybullet.env import PyBulletEnv
-    from mimicgen_pipe.generation import replay_actions
+    from envs import make_env
     from mimicgen_pipe.store import read_store
 
     store = read_store(transfer_run / "data/generated/stack_D0_iiwa.zarr", ["actions"])
-    env = PyBulletEnv("stack", "iiwa")
-    starts = np.concatenate([[0], store.episode_ends[:-1]])
-    for k in range(min(3, len(starts))):
-        actions = np.asarray(store.data["actions"][starts[k] : store.episode_ends[k]])
-        state = np.asarray(store.episodes["initial_state"][k])
-        _, success = replay_actions(env, state, actions, env.spec.objects)
+    # through make_env, which puts numpy's BLAS on one thread as the generating workers
+    # had it; a PyBulletEnv made directly replays with the machine's thread count
+    env = make_env("pybullet", "stack", "iiwa")
+    for k, success in enumerate(replay_first_episodes(store, env, 3)):
         assert success, f"episode {k} failed on replay"
     env.close()
 

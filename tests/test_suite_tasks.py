@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
 import yaml
 
 from mimicgen_pipe.store import read_store
-from tests.conftest import REPO, cli
+from tests.conftest import REPO, cli, replay_first_episodes
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
@@ -23,7 +22,6 @@ SUITE = yaml.safe_load((REPO / "params.yaml").read_text())["suite"]
 @pytest.mark.parametrize("task", SUITE["tasks"])
 def test_source_parse_generate_replay(task, tmp_path):
     from envs import make_env
-    from mimicgen_pipe.generation import replay_actions
 
     (tmp_path / "params.yaml").write_text(
         f"task: {task}\nsource: {{num_demos: 2, seed: 0}}\ngenerate: {{workers: 1, seed: 1}}\n"
@@ -39,11 +37,7 @@ def test_source_parse_generate_replay(task, tmp_path):
     store = read_store(tmp_path / f"data/generated/{task}_D0.zarr", ["actions"])
     env = make_env("maniskill", task)
     try:
-        starts = np.concatenate([[0], store.episode_ends[:-1]])
-        for k in range(min(2, len(starts))):
-            actions = np.asarray(store.data["actions"][starts[k] : store.episode_ends[k]])
-            state = np.asarray(store.episodes["initial_state"][k])
-            _, success = replay_actions(env, state, actions, env.spec.objects)
+        for k, success in enumerate(replay_first_episodes(store, env, 2)):
             assert success, f"{task}: generated episode {k} failed on replay"
     finally:
         env.close()
