@@ -81,8 +81,10 @@ def check_robot(backend: str, robot: str) -> None:
     _module(backend).check_robot(robot)
 
 
-def make_env(backend: str, task: str, robot: str = "panda"):
-    """A fresh env of ``task`` on ``backend`` that implements the env protocol.
+def make_env(backend: str, task: str, robot: str = "panda", fast_step: bool = True):
+    """A fresh env of ``task`` on ``backend`` that implements the env protocol. fast_step
+    (maniskill): the lean control step, the same simulation without ManiSkill's per-step
+    bookkeeping (envs/maniskill/lean.py); False: ManiSkill's own ``env.step``.
 
     It also puts numpy's BLAS on one thread for the rest of the process: OpenBLAS splits some
     products across its threads, whose number defaults to the machine's core count (Ray
@@ -92,6 +94,8 @@ def make_env(backend: str, task: str, robot: str = "panda"):
     task_spec(backend, task)
     check_robot(backend, robot)
     threadpool_limits(1, user_api="blas")
+    if backend == "maniskill":
+        return _module(backend).make_env(task, robot, fast_step)
     return _module(backend).make_env(task, robot)
 
 

@@ -10,6 +10,7 @@ so that the generator never needs to know which simulator it drives.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -54,6 +55,15 @@ def clip_actions(actions: np.ndarray) -> np.ndarray:
     """Clip as the controller does: translation per dimension to [-1, 1], rotation by norm to 1,
     gripper to [-1, 1]. Returns a new array."""
     a = np.array(actions, dtype=np.float64, copy=True)
+    if a.shape == (7,):  # one action (every control step): plain floats, the same arithmetic
+        x = a.tolist()
+        a[:3] = [min(max(v, -1.0), 1.0) for v in x[:3]]
+        # numpy's norm along an axis: sqrt of the squares summed in order
+        norm = math.sqrt(x[3] * x[3] + x[4] * x[4] + x[5] * x[5])
+        if norm > 1.0:
+            a[3:6] /= max(norm, 1e-12)
+        a[6] = min(max(x[6], -1.0), 1.0)
+        return a
     a[..., :3] = np.clip(a[..., :3], -1.0, 1.0)
     norm = np.linalg.norm(a[..., 3:6], axis=-1, keepdims=True)
     a[..., 3:6] = np.where(norm > 1.0, a[..., 3:6] / np.maximum(norm, 1e-12), a[..., 3:6])

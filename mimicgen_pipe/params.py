@@ -164,6 +164,15 @@ class RayParams:
 
 
 @dataclass(frozen=True)
+class ManiSkillParams:
+    """fast_step: the ManiSkill back end steps with its lean control step
+    (envs/maniskill/lean.py: the same simulation, bit for bit, without ManiSkill's per-step
+    bookkeeping); false: ManiSkill's own ``env.step`` and ``evaluate()``, for checking."""
+
+    fast_step: bool = True
+
+
+@dataclass(frozen=True)
 class TransferParams:
     """The robot-transfer matrix in dvc.yaml (paper E): every task x variant x robot is
     generated from the same Panda source demos, ``attempts`` fixed attempts each, on
@@ -213,6 +222,7 @@ class Params:
     export: ExportParams = field(default_factory=ExportParams)
     render: RenderParams = field(default_factory=RenderParams)
     ray: RayParams = field(default_factory=RayParams)
+    maniskill: ManiSkillParams = field(default_factory=ManiSkillParams)
 
 
 _RANGES: dict[str, tuple[float, float]] = {

@@ -87,7 +87,9 @@ def run(args: argparse.Namespace) -> None:
     e = params.evaluate
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
     job = EvalJob(
-        make_env=functools.partial(envs.make_env, params.backend, params.task, robot),
+        make_env=functools.partial(
+            envs.make_env, params.backend, params.task, robot, params.maniskill.fast_step
+        ),
         load_policy=load_rollout_policy,
         variant=args.variant,
         horizon=spec.horizon,

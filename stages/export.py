@@ -54,7 +54,11 @@ def run(args: argparse.Namespace) -> None:
         tmp_out.mkdir()
         for fmt in formats:
             t0 = time.perf_counter()
-            extra = _maniskill_replays(store, params.export.workers) if fmt == "maniskill" else {}
+            extra = (
+                _maniskill_replays(store, params.export.workers, params.maniskill.fast_step)
+                if fmt == "maniskill"
+                else {}
+            )
             if fmt == "maniskill":
                 ok = sum(bool(r.success[-1]) for r in extra["replays"])
                 metrics["maniskill_replay_success"] = ok / max(1, store.n_episodes)
@@ -65,7 +69,7 @@ def run(args: argparse.Namespace) -> None:
     print(f"export: {store.n_episodes} episodes of {store_path} -> {out}")
 
 
-def _maniskill_replays(store, workers: int) -> dict:
+def _maniskill_replays(store, workers: int, fast_step: bool) -> dict:
     """The replays, state layout and env_info that the ManiSkill format writes."""
     from envs.maniskill import trajectory
 
@@ -76,7 +80,7 @@ def _maniskill_replays(store, workers: int) -> dict:
     episodes = [
         (ep["env_state"][0], ep["actions"]) for ep in map(store.episode, range(store.n_episodes))
     ]
-    job = trajectory.ReplayJob(store.attrs["task"], store.attrs["robot"])
+    job = trajectory.ReplayJob(store.attrs["task"], store.attrs["robot"], fast_step)
     replays = list(
         tqdm(
             trajectory.replay_episodes(episodes, job, Executor("local", workers)),

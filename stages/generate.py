@@ -93,7 +93,9 @@ def run(args: argparse.Namespace) -> None:
         g.action_noise, g.n_interp, g.n_fixed, g.selection, g.nn_k, g.per_subtask, pose_noise
     )
     job = AttemptJob(
-        make_env=functools.partial(envs.make_env, params.backend, params.task, g.robot),
+        make_env=functools.partial(
+            envs.make_env, params.backend, params.task, g.robot, params.maniskill.fast_step
+        ),
         sources=source_demos(store, spec.objects),
         spec=spec,
         config=config,

@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> None:
     out = Path(args.out or layout.source_store(params.task))
     metrics_path = Path(args.metrics or layout.metrics_file("source", params.task))
     claim(out, metrics_path)  # fails at once if another run writes them
-    env = envs.make_env(params.backend, params.task, p.robot)
+    env = envs.make_env(params.backend, params.task, p.robot, params.maniskill.fast_step)
     kept, seeds, init_poses = [], [], []
     demonstrator_failures = replay_failures = seeds_tried = 0
     print(f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)")

@@ -24,9 +24,12 @@ def env():
     e.close()
 
 
-def test_action_to_target_matches_the_simulators_controller(env):
+def test_action_to_target_matches_the_simulators_controller():
     """Our conversion against ManiSkill's own: the arm controller's target pose after an
     action equals actions_to_target_poses (including the inverted rotation sign)."""
+    from envs import make_env
+
+    env = make_env("maniskill", "stack_cube", fast_step=False)  # the controller's own state
     rng = np.random.default_rng(0)
     arm = env.unwrapped.agent.controller.controllers["arm"]
     env.reset(seed=3, variant="D0")

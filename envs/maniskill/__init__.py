@@ -14,14 +14,14 @@ def check_robot(robot: str) -> None:
         raise InputError(f"robot {robot!r}: unknown for maniskill (known: {', '.join(ROBOTS)})")
 
 
-def make_env(task: str, robot: str = "panda"):
+def make_env(task: str, robot: str = "panda", fast_step: bool = True):
     if robot == "xarm6":
         from envs.maniskill.xarm6 import XArm6ManiSkillEnv
 
-        return XArm6ManiSkillEnv(task, robot)
+        return XArm6ManiSkillEnv(task, robot, fast_step)
     from envs.maniskill.env import ManiSkillEnv
 
-    return ManiSkillEnv(task, robot)
+    return ManiSkillEnv(task, robot, fast_step)
 
 
 def source_episodes(env, num_demos, seed, from_file, work_dir):

@@ -14,6 +14,7 @@ from mani_skill.utils.registration import REGISTERED_ENVS, register_env  # noqa:
 from mani_skill.utils.structs.pose import Pose  # noqa: E402
 
 from envs import load_task  # noqa: E402
+from envs.maniskill.lean import LeanStep  # noqa: E402
 from envs.maniskill.tasks import ROBOTS, ManiSkillTask  # noqa: E402
 from mimicgen_pipe import poses  # noqa: E402
 from mimicgen_pipe.controller import (  # noqa: E402
@@ -145,6 +146,11 @@ _ZERO3 = np.zeros(3, np.float32)
 class ManiSkillEnv:
     """One CPU ManiSkill env (physx_cpu, no rendering, state only, pd_ee_delta_pose).
 
+    fast_step: step with the lean control step (envs/maniskill/lean.py: the same simulation,
+    bit for bit, without ManiSkill's per-step bookkeeping) and read the task's signals and
+    success from its ``evaluate`` when asked; False: ManiSkill's own ``env.step`` and
+    ``evaluate()``.
+
     Poses are 4x4 in the world frame. Actions are ManiSkill's normalised pd_ee_delta_pose
     actions: translation 0.1 m per unit in the robot root frame, rotation as Euler "XYZ"
     angles of -0.1 rad per unit (ManiSkill inverts the sign), gripper +1 open / -1 closed.
@@ -168,13 +174,14 @@ class ManiSkillEnv:
         """ManiSkill's agent uid of ``robot`` in ``task`` (the task's own for the Panda)."""
         return task.panda_uid if robot == "panda" else cls.agent_uids[robot]
 
-    def __init__(self, task: str = "stack_cube", robot: str = "panda") -> None:
+    def __init__(self, task: str = "stack_cube", robot: str = "panda", fast_step: bool = True):
         if robot not in self.agent_uids:
             known = ", ".join(self.agent_uids)
             raise InputError(f"robot {robot!r}: unknown for maniskill (known: {known})")
         self.task = load_task("maniskill", task)
         self.spec = self.task.spec
         self.robot = robot
+        self.fast_step = fast_step
         self.agent_uid = self.agent_uid_for(self.task, robot)
         self._env = gym.make(
             self.env_id_for(self.task),
@@ -204,7 +211,7 @@ class ManiSkillEnv:
             rot_repr="euler_xyz",
             root_pose=_pose_of(self._u.agent.robot.pose.raw_pose),
         )
-        self._info: dict = {}
+        self._info: dict | None = None  # the task's evaluation, made when first asked
         self._scene: int | None = None  # the scene seed of a variant with its own objects
         self._eef: np.ndarray | None = None  # cached until the next step/reset/set_state
         self._objects: dict[str, np.ndarray] | None = None
@@ -217,7 +224,7 @@ class ManiSkillEnv:
         if scene != self._scene:  # a variant with other objects (O1) has its own scene
             self._build(scene)
         self._u.reset(seed=int(seed), options={"variant": variant})
-        self._changed(self._u.evaluate())
+        self._changed()
 
     def rebuild(self) -> None:
         # PhysX keeps contact caches across plain resets; a reconfigure builds a new scene.
@@ -229,10 +236,15 @@ class ManiSkillEnv:
         self._u.reset(seed=seed, options={"variant": "D0", "reconfigure": True})
         self._scene = scene
         self._bind()
-        self._changed(self._u.evaluate())
+        self._changed()
 
-    def _changed(self, info: dict) -> None:
+    def _changed(self, info: dict | None = None) -> None:
         self._info, self._eef, self._objects = info, None, None
+
+    def _evaluation(self) -> dict:
+        if self._info is None:
+            self._info = self.task.evaluate(self._u) if self._lean else self._u.evaluate()
+        return self._info
 
     def _bind(self) -> None:
         """Hold the simulator objects read on every step (a reconfigure replaces them).
@@ -257,10 +269,14 @@ class ManiSkillEnv:
         self._finger_index = [
             robot.active_joints.index(j) for j in robot.active_joints if "finger" in j.name
         ]
+        self._lean = LeanStep(u) if self.fast_step else None
 
     def step(self, action: np.ndarray) -> None:
-        self._info = self._u.step(np.asarray(action, dtype=np.float32))[4]
-        self._eef = self._objects = None
+        if self._lean:
+            self._lean.step(action)
+            self._changed()
+        else:
+            self._changed(self._u.step(np.asarray(action, dtype=np.float32))[4])
 
     def eef_pose(self) -> np.ndarray:
         if self._eef is None:
@@ -276,10 +292,13 @@ class ManiSkillEnv:
         return np.asarray(self._robot.qpos, np.float64)[self._finger_index]
 
     def subtask_signals(self) -> dict[str, bool]:
-        return self.task.signals(self._u, self._info)
+        info = self._evaluation()
+        if self._lean:
+            return {k: v for k, v in info.items() if k != "success"}
+        return self.task.signals(self._u, info)
 
     def is_success(self) -> bool:
-        return bool(self._info["success"])
+        return bool(self._evaluation()["success"])
 
     def get_state(self) -> np.ndarray:
         parts = []
@@ -301,12 +320,12 @@ class ManiSkillEnv:
 
     def set_state(self, state: np.ndarray) -> None:
         self._u.set_state(torch.as_tensor(np.asarray(state, dtype=np.float32))[None])
-        self._changed(self._u.evaluate())
+        self._changed()
 
     def set_state_dict(self, state: dict) -> None:
         """Restore a ManiSkill state dict ({"actors": {...}, "articulations": {...}})."""
         self._u.set_state_dict(state)
-        self._changed(self._u.evaluate())
+        self._changed()
 
     def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray:
         return target_poses_to_actions(self.eef_pose(), target, gripper, self.controller)

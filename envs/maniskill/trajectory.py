@@ -26,6 +26,7 @@ EPISODES_PER_BLOCK = 8  # each block replays on a freshly rebuilt scene, as gene
 class ReplayJob:
     task: str
     robot: str
+    fast_step: bool = True
 
 
 _ENV = None
@@ -35,7 +36,7 @@ def _init_worker(job: ReplayJob) -> None:
     global _ENV
     import envs
 
-    _ENV = envs.make_env("maniskill", job.task, job.robot)
+    _ENV = envs.make_env("maniskill", job.task, job.robot, job.fast_step)
 
 
 def replay(env, initial_state: np.ndarray, actions: np.ndarray) -> Replayed:
@@ -43,14 +44,15 @@ def replay(env, initial_state: np.ndarray, actions: np.ndarray) -> Replayed:
     flat state before and after every step (T + 1, S), success after each step (T,) and the
     equivalent pd_joint_pos actions (T, 8): arm drive targets [rad], gripper action."""
     env.set_state(initial_state)
-    arm = env.unwrapped.agent.controller.controllers["arm"]
+    # the arm's drive targets as SAPIEN holds them (the lean step sets them there directly)
+    arm = [j._objs[0] for j in env.unwrapped.agent.controller.controllers["arm"].joints]
     # the first state as stored: set and read back, the robot's root moves by ~1e-8
     states, success, joint = [np.asarray(initial_state, np.float32)], [], []
     for action in np.asarray(actions, np.float32):
         env.step(action)
         states.append(env.get_state())
         success.append(env.is_success())
-        targets = np.asarray(arm._target_qpos, np.float32).reshape(-1)
+        targets = np.concatenate([j.drive_target for j in arm]).astype(np.float32)
         joint.append(np.concatenate([targets, action[-1:]]))
     return Replayed(np.stack(states), np.asarray(success, bool), np.stack(joint))
 

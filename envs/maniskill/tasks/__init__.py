@@ -30,7 +30,11 @@ class ManiSkillTask:
     are ManiSkill's); our env with the reset variants is registered as ``env_id``.
     objects: spec object name -> attribute of the ManiSkill env holding the actor.
     signals: (env, info) -> {signal name: bool}: the subtask signals from ManiSkill's
-        ``evaluate()`` info and the unwrapped env (e.g. ``env.agent.is_grasping``).
+        ``evaluate()`` info and the unwrapped env (e.g. ``env.agent.is_grasping``): the stock
+        step's (``maniskill.fast_step: false``).
+    evaluate: env -> {signal name: bool, ..., "success": bool}: the same signals and
+        ManiSkill's success, from poses and contacts read straight from SAPIEN
+        (envs/maniskill/lean.py): the lean step's, called only when asked.
     initialize: (env, env_idx, variant) -> None: place the scene for a variant that is not
         ManiSkill's own (variant.native); called in place of ManiSkill's
         ``_initialize_episode``, which it may call as ``env.native_initialize(env_idx)``.
@@ -54,6 +58,7 @@ class ManiSkillTask:
     base_env_id: str
     objects: dict[str, str]
     signals: Callable[[Any, dict], dict[str, bool]]
+    evaluate: Callable[[Any], dict[str, bool]]
     initialize: Callable[[Any, Any, Any], None] | None = None
     robot_base_xy: tuple[float, float] = PANDA_BASE_XY
     planner: str | None = None

@@ -22,8 +22,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from envs.maniskill.tasks import ManiSkillTask
 from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
+
+F32 = np.float32
 
 DEG = math.pi / 180
 UP = 90 * DEG
@@ -31,6 +35,18 @@ UP = 90 * DEG
 
 def signals(env, info: dict) -> dict[str, bool]:
     return {"grasp_peg": bool(env.agent.is_grasping(env.peg))}
+
+
+def evaluate(env) -> dict[str, bool]:
+    from envs.maniskill import lean
+
+    # ManiSkill's has_peg_inserted: the peg's head in the hole's frame (x along the hole)
+    hole = lean.offset_pose(env.box, env.box_hole_offsets)
+    head = lean.offset_pose(env.peg, env.peg_head_offsets)
+    x, y, z = lean.pose_multiply(lean.pose_inverse(*hole), head)[0]
+    r = env.box_hole_radii.numpy()[0]
+    inserted = bool(F32(-0.015) <= x and -r <= y <= r and -r <= z <= r)
+    return {"grasp_peg": lean.is_grasping(env, env.peg), "success": inserted}
 
 
 def _variant(box_yaw: float) -> ResetVariant:
@@ -71,6 +87,7 @@ TASK = ManiSkillTask(
     base_env_id="PegInsertionSide-v1",
     objects={"peg": "peg", "box": "box"},
     signals=signals,
+    evaluate=evaluate,
     panda_uid="panda_wristcam",  # the only robot the task supports and resets
     # ManiSkill draws the peg's length and radius when it builds the scene, and by default
     # rebuilds it at every reset; built once (at creation, seed 2022) the peg is the same in

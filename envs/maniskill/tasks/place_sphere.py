@@ -15,12 +15,29 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from envs.maniskill.tasks import ManiSkillTask
 from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
+
+F32 = np.float32
 
 
 def signals(env, info: dict) -> dict[str, bool]:
     return {"grasp_sphere": bool(info["is_obj_grasped"])}
+
+
+def evaluate(env) -> dict[str, bool]:
+    from envs.maniskill import lean
+
+    offset = lean.pose(env.obj)[0] - lean.pose(env.bin)[0]
+    on_bin = bool(
+        np.linalg.norm(offset[:2]) <= F32(0.005)
+        and abs(offset[2] - F32(env.radius) - F32(env.block_half_size[0])) <= F32(0.005)
+    )
+    grasped = lean.is_grasping(env, env.obj)
+    static = lean.is_static(env.obj, lin_thresh=1e-2, ang_thresh=0.5)
+    return {"grasp_sphere": grasped, "success": on_bin and static and not grasped}
 
 
 def _variant(bin_yaw: float) -> ResetVariant:
@@ -58,4 +75,5 @@ TASK = ManiSkillTask(
     base_env_id="PlaceSphere-v1",
     objects={"sphere": "obj", "bin": "bin"},
     signals=signals,
+    evaluate=evaluate,
 )

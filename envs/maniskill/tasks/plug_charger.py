@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from envs.maniskill.tasks import ManiSkillTask
 from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
 
@@ -24,6 +26,22 @@ BACK = 180 * DEG
 
 def signals(env, info: dict) -> dict[str, bool]:
     return {"grasp_charger": bool(env.agent.is_grasping(env.charger))}
+
+
+def evaluate(env) -> dict[str, bool]:
+    from envs.maniskill import lean
+
+    # ManiSkill's success: the charger within 5 mm and 0.2 rad of the goal pose
+    p, q = lean.pose(env.charger)
+    goal = env.goal_pose.raw_pose[0].numpy()
+    dist = np.linalg.norm(goal[:3] - p)
+    rel = lean.quat_multiply(lean.quat_invert(goal[3:]), q)
+    angle = 2 * math.atan2(float(np.linalg.norm(rel[1:])), float(rel[0]))
+    angle = min(angle, 2 * math.pi - angle)
+    return {
+        "grasp_charger": lean.is_grasping(env, env.charger),
+        "success": bool(dist <= 5e-3 and angle <= 0.2),
+    }
 
 
 def initialize(env, env_idx, variant: ResetVariant) -> None:
@@ -76,6 +94,7 @@ TASK = ManiSkillTask(
     base_env_id="PlugCharger-v1",
     objects={"charger": "charger", "receptacle": "receptacle"},
     signals=signals,
+    evaluate=evaluate,
     panda_uid="panda_wristcam",  # the only robot the task supports and resets
     initialize=initialize,
 )

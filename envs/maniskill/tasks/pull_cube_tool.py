@@ -15,14 +15,27 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from envs.maniskill.tasks import ManiSkillTask
 from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
+
+F32 = np.float32
 
 DEG = math.pi / 180
 
 
 def signals(env, info: dict) -> dict[str, bool]:
     return {"grasp_tool": bool(env.agent.is_grasping(env.l_shape_tool))}
+
+
+def evaluate(env) -> dict[str, bool]:
+    from envs.maniskill import lean
+
+    cube = lean.pose(env.cube)[0]
+    base = env.agent.robot.get_links()[0]._objs[0].entity_pose.p
+    pulled = bool(np.linalg.norm(cube[:2] - base[:2]) < F32(0.6))
+    return {"grasp_tool": lean.is_grasping(env, env.l_shape_tool), "success": pulled}
 
 
 def _variant(tool_yaw: float, cube_yaw: float) -> ResetVariant:
@@ -60,4 +73,5 @@ TASK = ManiSkillTask(
     base_env_id="PullCubeTool-v1",
     objects={"tool": "l_shape_tool", "cube": "cube"},
     signals=signals,
+    evaluate=evaluate,
 )
