@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import sapien
 import torch
 
 F32 = np.float32
@@ -102,20 +103,26 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     # on the same masked 1-D tensor ManiSkill takes it on
     q_abs[~positive] = _ZERO
     q_abs[positive] = torch.sqrt(torch.from_numpy(q_abs[positive])).numpy()
-    k = int(np.argmax(q_abs))
-    rows = (
-        (q_abs[0] * q_abs[0], m21 - m12, m02 - m20, m10 - m01),
-        (m21 - m12, q_abs[1] * q_abs[1], m10 + m01, m02 + m20),
-        (m02 - m20, m10 + m01, q_abs[2] * q_abs[2], m12 + m21),
-        (m10 - m01, m20 + m02, m21 + m12, q_abs[3] * q_abs[3]),
-    )
-    q = np.array(rows[k], F32) / (_TWO * max(q_abs[k], _FLOOR))
+    k = int(np.argmax(q_abs))  # the best-conditioned of ManiSkill's four candidates
+    if k == 0:
+        row = (q_abs[0] * q_abs[0], m21 - m12, m02 - m20, m10 - m01)
+    elif k == 1:
+        row = (m21 - m12, q_abs[1] * q_abs[1], m10 + m01, m02 + m20)
+    elif k == 2:
+        row = (m02 - m20, m10 + m01, q_abs[2] * q_abs[2], m12 + m21)
+    else:
+        row = (m10 - m01, m20 + m02, m21 + m12, q_abs[3] * q_abs[3])
+    q = np.array(row, F32) / (_TWO * max(q_abs[k], _FLOOR))
     return -q if q[0] < 0 else q
 
 
-def _clip_and_scale(a: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    # ManiSkill's gym_utils.clip_and_scale_action, in its order of operations
-    return F32(0.5) * (high + low) + F32(0.5) * (high - low) * np.clip(a, F32(-1), F32(1))
+def _scaling(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(mid, half) of ManiSkill's clip_and_scale_action: mid + half * clip(a, -1, 1)."""
+    return F32(0.5) * (high + low), F32(0.5) * (high - low)
+
+
+def _clip_and_scale(a: np.ndarray, mid: np.ndarray, half: np.ndarray) -> np.ndarray:
+    return mid + half * np.minimum(np.maximum(a, F32(-1)), F32(1))
 
 
 class LeanStep:
@@ -154,11 +161,11 @@ class LeanStep:
         self._qmask = kin.qmask
         self._arm_q = np.asarray(arm.active_joint_indices)
         self._arm_joints = [j._objs[0] for j in arm.joints]
-        self._arm_low = arm.action_space_low.numpy()
-        self._arm_high = arm.action_space_high.numpy()
+        low, high = arm.action_space_low.numpy(), arm.action_space_high.numpy()
+        self._arm_scaling = _scaling(low[:3], high[:3])
         self._rot_scale = F32(cfg.rot_lower)
-        self._grip_low = grip.action_space_low.numpy()
-        self._grip_high = grip.action_space_high.numpy()
+        self._grip_scaling = _scaling(grip.action_space_low.numpy(), grip.action_space_high.numpy())
+        self._to_base: tuple = (None, None)  # (root pose bytes, its inverse)
         self._grip_joints = [j._objs[0] for j in grip.joints]
         # joint -> the entry of the gripper action it takes (a mimic joint: its control joint's
         # times multiplier plus offset; ManiSkill's PDJointPosMimicController)
@@ -187,7 +194,7 @@ class LeanStep:
         """The arm's joint drive targets [rad] (float32) for a normalised delta-pose action (6,):
         the target pose = the delta applied to the current end-effector pose in the robot
         root frame, solved by IK from the current joints; the current joints if IK fails."""
-        delta = _clip_and_scale(arm_action[:3], self._arm_low[:3], self._arm_high[:3])
+        delta = _clip_and_scale(arm_action[:3], *self._arm_scaling)
         rot = arm_action[3:6]
         if float(np.dot(rot, rot)) > 0.999:  # maybe past the unit norm: clip it as torch does
             t = torch.from_numpy(rot[None])
@@ -196,12 +203,12 @@ class LeanStep:
                 rot = torch.mul(t, 1 / norm[:, None]).numpy()[0]
         rot = rot * self._rot_scale
         ee, root = self._ee.entity_pose, self._root.entity_pose
-        to_base = pose_inverse(root.p, root.q)
-        ee_p, ee_q = pose_multiply(to_base, (ee.p, ee.q))
+        key = root.p.tobytes() + root.q.tobytes()
+        if key != self._to_base[0]:  # a fixed base: inverted once
+            self._to_base = (key, pose_inverse(root.p, root.q))
+        ee_p, ee_q = pose_multiply(self._to_base[1], (ee.p, ee.q))
         target_q = quat_multiply(euler_xyz_quat(rot), ee_q)
         target_p = ee_p + delta
-        import sapien
-
         qpos = self._robot.qpos
         result, ok, _ = self._pmodel.compute_inverse_kinematics(
             self._end_link,
@@ -223,7 +230,7 @@ class LeanStep:
         env = self.env
         for joint, target in zip(self._arm_joints, self.arm_targets(action[:6]), strict=True):
             joint.set_drive_target(float(target))
-        grip = _clip_and_scale(action[6:], self._grip_low, self._grip_high)
+        grip = _clip_and_scale(action[6:], *self._grip_scaling)
         for joint, i, mul, off in zip(
             self._grip_joints, self._grip_source, self._grip_mul, self._grip_off, strict=True
         ):
