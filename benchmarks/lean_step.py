@@ -144,7 +144,7 @@ def main() -> None:
           f"{hi / (seconds['lean'] / n):.1f}x")  # fmt: skip
     print(f"  generator / raw lean step {seconds['lean'] / raw['lean']:.2f} (overhead)")
     if Path(args.policy).exists():
-        ev = {name: evaluation(env[name], args.policy, args.episodes, args.variant) for name in paths}
+        ev = {n: evaluation(env[n], args.policy, args.episodes, args.variant) for n in paths}
         same_ev = [r.success for r in ev["stock"][1]] == [r.success for r in ev["lean"][1]]
         ev_steps = sum(r.steps for r in ev["lean"][1])
         print(f"\npolicy evaluation ({args.policy}, {args.episodes} episodes, {ev_steps} steps)")
