@@ -3,6 +3,8 @@ coverage with params.yaml plus the run's overrides, a fixed number of attempts o
 
     python benchmarks/ablations.py [--variant D1] [--attempts 200] [--workers 1]
         [--only default action_noise_0 ...] [--list]
+    python benchmarks/ablations.py --task pull_cube_tool --action-noise 0.025 \
+        --save metrics/suite_ablations/pull_cube_tool --work data/suite_ablations/pull_cube_tool
 
 Each run saves its params.yaml and metrics under metrics/ablations/<name>/ (what the report
 stage reads, comparing every run with the one that has params.yaml's settings) and its
@@ -75,6 +77,10 @@ def stage(*args: str) -> None:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--params", default="params.yaml", help="base params (default: params.yaml)")
+    p.add_argument("--task", help="task (default: the params file's)")
+    p.add_argument(
+        "--action-noise", type=float, help="base action noise (default: the params file's)"
+    )
     p.add_argument("--variant", default="D1")
     p.add_argument("--attempts", type=int, default=200, help="attempts per run (default: 200)")
     p.add_argument("--workers", type=int, default=1, help="simulator processes per run")
@@ -89,7 +95,11 @@ def main() -> None:
             print(f"{name:30s} {what}  {overrides}")
         return
     base = yaml.safe_load(Path(args.params).read_text())
-    task = load_params(args.params).task
+    if args.task:
+        base["task"] = args.task
+    if args.action_noise is not None:
+        base["generate"]["action_noise"] = args.action_noise
+    task = base.get("task", load_params(args.params).task)
     parsed = args.parsed or str(layout.parsed_store(task))
     size = {
         "generate": {

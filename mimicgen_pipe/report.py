@@ -757,6 +757,59 @@ def suite_blocks(
     ]
 
 
+def suite_policy_blocks(
+    specs: Sequence[TaskSpec], metrics: Mapping[str, Mapping[str, Any]], paper: PaperResults
+) -> list[Block]:
+    """The task suite's policies: per task x variant the success rate of the BC-RNN trained
+    on the 10 source demos (metrics evaluate_<task>_source_on_<variant>) and of the one
+    trained on that variant's generated demos (evaluate_<task>_<variant>_on_<variant>), max
+    and last over training, beside the paper's Table P.1 for the task ours stands for. Rows:
+    D0 always, other variants where a metric is present."""
+    rows = []
+    for spec in specs:
+        for v in spec.variants:
+            src, gen = (metrics.get(f"evaluate_{spec.name}_{d}_on_{v}") for d in ("source", v))
+            if v != "D0" and src is None and gen is None:
+                continue
+
+            def sr(m: Mapping[str, Any] | None) -> str:
+                if m is None:
+                    return MISSING
+                return f"{fmt(m.get('success_rate_max'))} / {fmt(m.get('success_rate_last'))}"
+
+            gain = (
+                _delta(src.get("success_rate_max"), gen.get("success_rate_max"))
+                if src and gen
+                else MISSING
+            )
+            ref = [
+                e
+                for d in ("source", v)
+                for e in paper.find(table="P.1", task=spec.paper_task, data=d, variant=v)
+            ]
+            rows.append(
+                (
+                    f"{spec.name} ({v})",
+                    spec.paper_task,
+                    sr(src),
+                    sr(gen),
+                    gain,
+                    "; ".join(f"{e.data}: {e.cite()}" for e in ref) or "– (none in the paper)",
+                )
+            )
+    columns = ("task (evaluated on)", "paper task", "source-only SR max / last",
+               "generated SR max / last", "gain (max)", "paper (low-dim, P.1)")  # fmt: skip
+    return [
+        Heading(2, "Task suite: policy success rate (%)"),
+        Text(
+            "BC-RNN (cpu profile) trained on each task's 10 source demos and on the demos "
+            "generated for a variant (`suite/dvc.yaml`), evaluated on that variant, 50 "
+            "episodes per checkpoint. The paper's source agents are evaluated on D0 only."
+        ),
+        Table(columns, tuple(rows)),
+    ]
+
+
 def video_blocks(
     task: str, variants: Sequence[str], media: Mapping[str, Mapping[str, Any]], folder: str
 ) -> list[Block]:

@@ -20,6 +20,7 @@ from mimicgen_pipe.report import (
     render_html,
     render_markdown,
     suite_blocks,
+    suite_policy_blocks,
     transfer_blocks,
     transfer_table,
     video_blocks,
@@ -99,6 +100,7 @@ def run(args: argparse.Namespace) -> None:
     # O1 rows for the tasks generated on their object-transfer variant (the others lack it)
     variants_shown = [*u.variants, *(["O1"] if u.object_transfer else [])]
     blocks += suite_blocks(specs, variants_shown, this_run.metrics, paper)
+    blocks += suite_policy_blocks(specs, this_run.metrics, paper)
     media = {}
     for v in variants:
         folder = layout.media_dir(params.task, v)

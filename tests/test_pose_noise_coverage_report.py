@@ -407,3 +407,25 @@ def test_a_fixed_yaw_counts_as_one_bin():
     assert cov.outside == 0 and cov.joint_total == 9 * 27
     assert cov.object_coverage[0] == 100.0  # all 9 (x, y) bins hit by 200 draws
     assert cov.counts[0, :, :, 1:].sum() == 0  # yaw in its single bin
+
+
+def test_suite_policy_table_sets_source_beside_generated_and_the_paper():
+    from mimicgen_pipe.report import suite_policy_blocks
+
+    paper = load_paper_results(PAPER)
+    spec = envs.task_spec("maniskill", "place_sphere")  # stands for Pick Place
+    metrics = {
+        "evaluate_place_sphere_source_on_D0": {"success_rate_max": 6.0, "success_rate_last": 2.0},
+        "evaluate_place_sphere_D0_on_D0": {"success_rate_max": 84.0, "success_rate_last": 80.0},
+        "evaluate_place_sphere_source_on_D1": {"success_rate_max": 0.0, "success_rate_last": 0.0},
+    }
+    table = suite_policy_blocks([spec], metrics, paper)[-1]
+    d0, d1 = table.rows  # D2: no metric, no row
+    assert d0 == (
+        "place_sphere (D0)", "Pick Place", "6.0 / 2.0", "84.0 / 80.0", "+78.0",
+        "source: 0.0 ± 0.0 (Table P.1, Pick Place D0); D0: 58.7 ± 7.5 (Table P.1, Pick Place D0)",
+    )  # fmt: skip
+    assert d1 == (
+        "place_sphere (D1)", "Pick Place", "0.0 / 0.0", "missing", "missing",
+        "– (none in the paper)",
+    )  # fmt: skip
