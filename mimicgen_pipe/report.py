@@ -220,15 +220,21 @@ def check_run_ids(metrics: Mapping[str, Mapping[str, Any]], folder: str | Path) 
     """InputError when metrics that the report puts side by side describe different generate
     runs: generate_<x> (run_id) against coverage_<x> (run_id of the stores it measured),
     train_<x> and evaluate_<x>_on_<v> (data_run_id of the store the policy learnt from).
-    Metrics written before run ids existed carry none and are not compared."""
+    Metrics written before run ids existed carry none and are not compared. Where a
+    generate_<x>_train exists (the suite's policy data, apart from its DGR store), train_<x>
+    and evaluate_<x>_on_<v> are compared with it instead."""
     for stem, m in metrics.items():
         if not stem.startswith("generate_") or m.get("run_id") is None:
             continue
         name = stem.removeprefix("generate_")
+        policy = name.removesuffix("_train")  # the name its policy's metrics carry
         ids = {f"{Path(folder) / stem}.json run_id": m["run_id"]}
+        trained_here = name.endswith("_train") or f"generate_{name}_train" not in metrics
         for other, om in metrics.items():
-            key = {f"coverage_{name}": "run_id", f"train_{name}": "data_run_id"}.get(other)
-            if key is None and other.startswith(f"evaluate_{name}_on_"):
+            key = {f"coverage_{name}": "run_id"}.get(other)
+            if trained_here and (
+                other == f"train_{policy}" or other.startswith(f"evaluate_{policy}_on_")
+            ):
                 key = "data_run_id"
             if key is not None and om.get(key) is not None:
                 ids[f"{Path(folder) / other}.json {key}"] = om[key]

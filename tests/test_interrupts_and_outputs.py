@@ -254,6 +254,12 @@ def test_report_refuses_metrics_of_different_runs():
         mixed = {**same, stem: {key: "z"}}
         with pytest.raises(InputError, match=f"metrics/{stem}.json {key} has run id 'z'"):
             check_run_ids(mixed, "metrics")
+    # the suite's policies learn from generate_<x>_train, not from its DGR store
+    suite = {**same, "generate_stack_D1_train": {"run_id": "t"}}
+    with pytest.raises(InputError, match="generate_stack_D1_train.json run_id has run id 't'"):
+        check_run_ids(suite, "metrics")
+    suite["train_stack_D1"] = suite["evaluate_stack_D1_on_D1"] = {"data_run_id": "t"}
+    check_run_ids(suite, "metrics")
 
 
 def test_run_id_depends_on_data_shaping_params_and_input_only():

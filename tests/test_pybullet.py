@@ -236,7 +236,7 @@ def test_unreachable_workspace_is_one_clear_error(transfer_run, monkeypatch, cap
     from mimicgen_pipe.cli import main
 
     monkeypatch.setattr(
-        envs, "make_env", lambda backend, task, robot: PyBulletEnv(task, robot, (-3.0, 0.0))
+        envs, "make_env", lambda backend, task, robot, *_: PyBulletEnv(task, robot, (-3.0, 0.0))
     )
     monkeypatch.chdir(transfer_run)
     code = main(
