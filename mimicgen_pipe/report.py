@@ -520,14 +520,33 @@ def build_report(
     return blocks
 
 
+def suite_ablation_blocks(spec: TaskSpec, runs: Sequence[Run], paper: PaperResults) -> list[Block]:
+    """A suite task's saved ablation runs (benchmarks/ablations.py --task), each against the
+    one of them named ``default``, whose settings are the base (they may differ from
+    params.yaml's, e.g. a lower action noise)."""
+    base = next((r for r in runs if r.name == "default"), None)
+    heading = f"Ablations on {spec.name} ({spec.paper_task})"
+    if base is None:
+        names = ", ".join(r.name for r in runs) or "none"
+        return [
+            Heading(2, heading),
+            Text(f"No saved run named `default` to compare with: {MISSING} (runs: {names})."),
+        ]
+    return _ablation_blocks(
+        spec.name, spec.paper_task, method_settings(base.params), runs, paper, heading, "its own"
+    )
+
+
 def _ablation_blocks(
     task: str,
     paper_task: str,
     settings: Mapping[str, Any],
     ablations: Sequence[Run],
     paper: PaperResults,
+    heading: str = "Ablations",
+    base_settings_are: str = "this run's",
 ) -> list[Block]:
-    blocks: list[Block] = [Heading(2, "Ablations")]
+    blocks: list[Block] = [Heading(2, heading)]
     if not ablations:
         return blocks + [Text(f"No saved ablation runs ({MISSING}).")]
     runs = [(r, method_settings(r.params)) for r in ablations]
@@ -542,9 +561,9 @@ def _ablation_blocks(
     base_run, base_settings = base[0]
     blocks.append(
         Text(
-            f"Each run against `{base_run.name}` (this run's settings, same attempts). Δ is in "
-            "points of DGR; ± is the binomial standard error of one run's DGR, so a Δ within "
-            "about twice it is noise. The paper column gives the same change in the paper's "
+            f"Each run against `{base_run.name}` ({base_settings_are} settings, same attempts). "
+            "Δ is in points of DGR; ± is the binomial standard error of one run's DGR, so a Δ "
+            "within about twice it is noise. The paper column gives the same change in the paper's "
             "table for the same reset variant (its base → changed value), on the task the "
             "table holds. Coverage is the joint support coverage (paper Q) of the kept scenes, "
             "beside what as many uniformly spread scenes would cover: with a fixed number of "

@@ -19,6 +19,7 @@ from mimicgen_pipe.report import (
     load_paper_results,
     render_html,
     render_markdown,
+    suite_ablation_blocks,
     suite_blocks,
     suite_policy_blocks,
     transfer_blocks,
@@ -61,6 +62,16 @@ def read_metrics(folder: Path) -> dict[str, dict[str, Any]]:
     return out
 
 
+def read_runs(folder: Path) -> list[Run]:
+    """The saved runs in ``folder``: one sub-folder each, with its params.yaml and metrics."""
+    runs = []
+    for sub in sorted(p for p in folder.glob("*") if p.is_dir()):
+        if not (sub / "params.yaml").exists():
+            raise InputError(f"{sub}: params.yaml missing (an ablation run saves its params)")
+        runs.append(Run(sub.name, load_params(sub / "params.yaml"), read_metrics(sub)))
+    return runs
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     metrics_dir = Path(args.metrics)
@@ -71,13 +82,7 @@ def run(args: argparse.Namespace) -> None:
     if not metrics_dir.is_dir():
         raise InputError(f"{metrics_dir}: metrics folder not found")
     this_run = Run("this run", params, read_metrics(metrics_dir))
-    ablations = []
-    for folder in sorted(p for p in ablations_dir.glob("*") if p.is_dir()):
-        if not (folder / "params.yaml").exists():
-            raise InputError(f"{folder}: params.yaml missing (an ablation run saves its params)")
-        ablations.append(
-            Run(folder.name, load_params(folder / "params.yaml"), read_metrics(folder))
-        )
+    ablations = read_runs(ablations_dir)
     variants = list(params.generate.variants)
     images, heatmaps = {}, {}
     for v in variants:
@@ -101,6 +106,11 @@ def run(args: argparse.Namespace) -> None:
     variants_shown = [*u.variants, *(["O1"] if u.object_transfer else [])]
     blocks += suite_blocks(specs, variants_shown, this_run.metrics, paper)
     blocks += suite_policy_blocks(specs, this_run.metrics, paper)
+    # ablation runs on suite tasks: metrics/suite_ablations/<task>/<run>/
+    for task in u.tasks:
+        runs = read_runs(metrics_dir / "suite_ablations" / task)
+        if runs:
+            blocks += suite_ablation_blocks(envs.task_spec(u.backend, task), runs, paper)
     media = {}
     for v in variants:
         folder = layout.media_dir(params.task, v)

@@ -22,6 +22,7 @@ from mimicgen_pipe.pose_noise import (
     pose_noise_level,
 )
 from mimicgen_pipe.report import (
+    Heading,
     Image,
     Run,
     Table,
@@ -248,6 +249,31 @@ def test_report_ablations_show_deltas_against_the_base_and_the_papers_direction(
     seeds = next(t for t in tables if t.columns[0] == "variant" and "seeds" in t.columns)
     assert seeds.rows[0][1:5] == ("0, 1, 2", "90.0, 91.0, 89.0", "90.0 ± 1.0", "2.0")
     assert "69.3 ± 0.4 (Table S.1, Stack Three D1)" in seeds.rows[0][5]
+
+
+def test_suite_ablations_compare_with_their_own_default_run():
+    """A suite task's ablations have a base of their own (here action noise 0.025, not
+    params.yaml's 0.05): deltas are against the run named default, and a folder without it
+    says so instead of comparing with the wrong base."""
+    from mimicgen_pipe.report import suite_ablation_blocks
+
+    paper = load_paper_results(PAPER)
+    spec = envs.task_spec("maniskill", "pull_cube_tool")
+    stem = "generate_pull_cube_tool_D1"
+    base, l2 = with_settings(action_noise=0.025), with_settings(action_noise=0.025, level="L2")
+    runs = [
+        Run("default", base, {stem: gen_metrics(43.5)}),
+        Run("action_noise_0", with_settings(action_noise=0.0), {stem: gen_metrics(62.0)}),
+        Run("pose_noise_L2", l2, {stem: gen_metrics(29.5)}),
+    ]
+    blocks = suite_ablation_blocks(spec, runs, paper)
+    assert blocks[0] == Heading(2, "Ablations on pull_cube_tool (Hammer Cleanup)")
+    rows = {r[0]: r for r in blocks[-1].rows}
+    assert rows["default"][1] == "(base)"
+    assert rows["action_noise_0"][1:6] == ("action_noise=0.0", "D1", "200", "62.0 ± 3.4", "+18.5")
+    assert rows["pose_noise_L2"][1] == "pose_noise.level=L2" and rows["pose_noise_L2"][5] == "-14.0"
+    lone = suite_ablation_blocks(spec, runs[1:], paper)
+    assert "missing" in lone[-1].text and "action_noise_0, pose_noise_L2" in lone[-1].text
 
 
 def test_html_holds_the_same_tables_and_embeds_images():
