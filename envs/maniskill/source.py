@@ -96,7 +96,7 @@ def read_trajectory_file(
 def run_motion_planner(
     task: str, agent_uid: str, num_demos: int, seed: int, out_dir: Path, max_tries: int
 ) -> tuple[Path, int, int]:
-    """Run ManiSkill's motion-planning demonstrator with ManiSkill agent ``agent_uid`` until
+    """Run the task's motion-planning demonstrator with ManiSkill agent ``agent_uid`` until
     ``num_demos`` successes (or ``max_tries`` seeds), keeping successes only, then convert
     to pd_ee_delta_pose.
     Returns (converted .h5, successful plans, failed plans)."""
@@ -181,7 +181,9 @@ def _plan_child(
         record_reward=False,
         save_on_reset=False,
     )
-    solve = MP_SOLUTIONS[spec.planner or spec.base_env_id]
+    solve = (
+        spec.planner if callable(spec.planner) else MP_SOLUTIONS[spec.planner or spec.base_env_id]
+    )
     kept = failed = 0
     for s in range(int(seed), int(seed) + int(max_tries)):
         try:

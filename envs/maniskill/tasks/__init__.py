@@ -41,7 +41,10 @@ class ManiSkillTask:
         None: envs.maniskill.env.redraw_planar (ManiSkill's reset, then every object
         redrawn from the variant).
     robot_base_xy: [m] the Panda's base in the world, for the variants' reach cut.
-    planner: key of ManiSkill's motion-planning solutions (default: base_env_id).
+    planner: the source demonstrator: a key of ManiSkill's motion-planning solutions
+        (default: base_env_id), or the task's own function (env, seed) -> the last step's
+        result or -1, with the signature and conventions of ManiSkill's solutions (it is
+        run on the ``pd_joint_pos`` env, recorded, and converted like them).
     env_kwargs: more keyword arguments of ManiSkill's env, for every env of the task (our
         env, the planner's and so ManiSkill's converter, which rebuilds the planner's).
     panda_uid: ManiSkill's agent for our robot "panda": the Panda, or the same arm with a
@@ -61,7 +64,7 @@ class ManiSkillTask:
     evaluate: Callable[[Any], dict[str, bool]]
     initialize: Callable[[Any, Any, Any], None] | None = None
     robot_base_xy: tuple[float, float] = PANDA_BASE_XY
-    planner: str | None = None
+    planner: str | Callable[..., Any] | None = None
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     panda_uid: str = "panda"
     rebuild_seed: int = 0
