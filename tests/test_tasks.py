@@ -69,3 +69,34 @@ def test_env_provides_the_spec_and_samples_inside_its_variants(backend, task):
                     assert min(gaps, default=1.0) >= variant.min_distance - 1e-6
     finally:
         env.close()
+
+
+@pytest.mark.sim
+def test_a_task_frame_carries_the_source_scenes_hole_into_another_scene():
+    """peg_insertion's box is reported in its hole's frame (ManiSkillTask.frames): in the
+    source demos' scene its pose is the actor's, bit for bit; in O1's scene, where ManiSkill
+    put the hole 2-4 cm elsewhere in the box, the reported pose puts the source scene's hole
+    offset exactly onto O1's hole, so an insertion carried in the box's frame follows it."""
+    from envs.maniskill.tasks.peg_insertion import hole_frame
+    from mimicgen_pipe.poses import pose_from_pq
+
+    env = envs.make_env("maniskill", "peg_insertion")
+    try:
+        u = env.unwrapped
+        source_hole = hole_frame(u)
+
+        def actor() -> np.ndarray:
+            p, q = u.box.pose.p.numpy()[0], u.box.pose.q.numpy()[0]
+            return pose_from_pq(p.astype(np.float64), q.astype(np.float64))
+
+        env.reset(seed=3, variant="D0")
+        assert np.array_equal(env.object_poses()["box"], actor())
+        env.reset(seed=3, variant="O1")
+        o1_hole = hole_frame(u)
+        assert np.abs(o1_hole[:3, 3] - source_hole[:3, 3]).max() > 0.02  # another hole
+        reported = env.object_poses()["box"]
+        np.testing.assert_allclose(reported @ source_hole, actor() @ o1_hole, atol=1e-9)
+        env.reset(seed=3, variant="D0")  # back in the source scene: as read again
+        assert np.array_equal(env.object_poses()["box"], actor())
+    finally:
+        env.close()

@@ -215,6 +215,10 @@ class ManiSkillEnv:
         self._scene: int | None = None  # the scene seed of a variant with its own objects
         self._eef: np.ndarray | None = None  # cached until the next step/reset/set_state
         self._objects: dict[str, np.ndarray] | None = None
+        # the task's frames in ManiSkill's creation scene (the source demos'), then the
+        # correction of each object's pose in a scene where its frame sits elsewhere
+        self._source_frames = {n: f(self._u) for n, f in self.task.frames.items()}
+        self._frame_fix: dict[str, np.ndarray] = {}
         self._bind()
         self.reset(seed=0, variant="D0")
 
@@ -253,6 +257,11 @@ class ManiSkillEnv:
         u = self._u
         self._tcp = u.agent.tcp._objs[0]
         self._actors = {n: getattr(u, a)._objs[0] for n, a in self.task.objects.items()}
+        self._frame_fix = {}
+        for name, frame in self.task.frames.items():
+            here, source = frame(u), self._source_frames[name]
+            if not np.array_equal(here, source):  # the source scene's poses stay as read
+                self._frame_fix[name] = here @ poses.pose_inv(source)
         self._state_actors = []
         # the registry get_state_dict() reads (it also holds actors merged across parallel
         # scenes, e.g. PegInsertionSide's peg, which scene.actors does not)
@@ -286,6 +295,8 @@ class ManiSkillEnv:
     def object_poses(self) -> dict[str, np.ndarray]:
         if self._objects is None:
             self._objects = {name: _matrix(a.pose) for name, a in self._actors.items()}
+            for name, fix in self._frame_fix.items():
+                self._objects[name] = self._objects[name] @ fix
         return self._objects
 
     def gripper_state(self) -> np.ndarray:

@@ -20,6 +20,7 @@ PANDA_BASE_XY = (-0.615, 0.0)  # where ManiSkill's table-top tasks put the Panda
 # [m] horizontally from the base: beyond ~0.78 m the Panda cannot reach the table top-down
 PANDA_REACH = 0.76
 ROBOTS = ("panda",)
+CREATION_SEED = 2022  # the seed ManiSkill builds every env's scene with at creation
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,14 @@ class ManiSkillTask:
     variant_scene_seeds: variant -> the seed its scene is built with instead, for a task
         whose geometry comes from that seed: object transfer (paper F, O1), another object
         under the same source demos.
+    frames: spec object -> its reference frame in its actor's frame, a 4x4 matrix [m] read
+        from the built scene (e.g. peg_insertion's hole in its box), for a frame that moves
+        on the actor when the scene is built with another seed (O1). The object's pose is
+        then the actor's pose times (this scene's frame) (the source scene's frame)^-1: the
+        actor's own pose in the scene the source demos were recorded in (ManiSkill's
+        creation scene, seed 2022, which such a task must also rebuild with), and in
+        another scene the pose that puts the frame where the source scene's box, say, has
+        its hole, so that a segment carried in the object's frame follows the frame.
     """
 
     spec: TaskSpec
@@ -69,6 +78,14 @@ class ManiSkillTask:
     panda_uid: str = "panda"
     rebuild_seed: int = 0
     variant_scene_seeds: dict[str, int] = field(default_factory=dict)
+    frames: dict[str, Callable[[Any], Any]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.frames and self.rebuild_seed != CREATION_SEED:
+            raise ValueError(
+                f"task {self.spec.name}: frames are measured against ManiSkill's creation "
+                f"scene (seed {CREATION_SEED}); give it rebuild_seed {CREATION_SEED}"
+            )
 
     @property
     def env_id(self) -> str:
