@@ -80,6 +80,16 @@ D0 = ResetVariant(
     native=True,
 )
 
+# O1 draws the scene as D0 does; its box is reported in its hole's frame (``frames``), up to
+# 2.2 cm from the box's actor along the box's y axis (about world -x at these yaws)
+O1 = ResetVariant(
+    {
+        "peg": D0.bounds["peg"],
+        "box": ObjectBounds((-0.075, 0.05), (0.19, 0.41), D0.bounds["box"].yaw),
+    },
+    native=True,
+)
+
 TASK = ManiSkillTask(
     spec=TaskSpec(
         name="peg_insertion",
@@ -92,7 +102,7 @@ TASK = ManiSkillTask(
             "D0": D0,
             "D1": _variant(22.5 * DEG),
             "D2": _variant(45 * DEG),
-            "O1": D0,
+            "O1": O1,
         },
         horizon=200,
         paper_task="Square",
