@@ -100,3 +100,20 @@ def test_a_task_frame_carries_the_source_scenes_hole_into_another_scene():
         assert np.array_equal(env.object_poses()["box"], actor())
     finally:
         env.close()
+
+
+@pytest.mark.sim
+def test_a_restored_state_brings_back_what_the_task_derived_at_reset():
+    """PlugCharger keeps its goal pose outside the simulator's state (ManiSkill derives it
+    from the receptacle at reset); a restored state gets the goal of its own scene, not the
+    last reset's, so a stored episode is judged against the right goal."""
+    env = envs.make_env("maniskill", "plug_charger")
+    try:
+        env.reset(seed=1, variant="D0")
+        state, goal = env.get_state(), env.unwrapped.goal_pose.raw_pose.numpy().copy()
+        env.reset(seed=2, variant="D0")
+        assert np.abs(env.unwrapped.goal_pose.raw_pose.numpy() - goal).max() > 0.01
+        env.set_state(state)
+        np.testing.assert_allclose(env.unwrapped.goal_pose.raw_pose.numpy(), goal, atol=1e-7)
+    finally:
+        env.close()

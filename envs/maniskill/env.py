@@ -331,11 +331,16 @@ class ManiSkillEnv:
 
     def set_state(self, state: np.ndarray) -> None:
         self._u.set_state(torch.as_tensor(np.asarray(state, dtype=np.float32))[None])
-        self._changed()
+        self._restored()
 
     def set_state_dict(self, state: dict) -> None:
         """Restore a ManiSkill state dict ({"actors": {...}, "articulations": {...}})."""
         self._u.set_state_dict(state)
+        self._restored()
+
+    def _restored(self) -> None:
+        if self.task.restore:  # e.g. a goal the task derived from poses at its last reset
+            self.task.restore(self._u)
         self._changed()
 
     def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray:

@@ -56,6 +56,9 @@ class ManiSkillTask:
     variant_scene_seeds: variant -> the seed its scene is built with instead, for a task
         whose geometry comes from that seed: object transfer (paper F, O1), another object
         under the same source demos.
+    restore: env -> None: after a stored state is restored, recompute what the task derives
+        from object poses at reset and keeps outside the simulator's state (e.g.
+        PlugCharger's goal pose, which its success test reads).
     frames: spec object -> its reference frame in its actor's frame, a 4x4 matrix [m] read
         from the built scene (e.g. peg_insertion's hole in its box), for a frame that moves
         on the actor when the scene is built with another seed (O1). The object's pose is
@@ -79,6 +82,7 @@ class ManiSkillTask:
     rebuild_seed: int = 0
     variant_scene_seeds: dict[str, int] = field(default_factory=dict)
     frames: dict[str, Callable[[Any], Any]] = field(default_factory=dict)
+    restore: Callable[[Any], None] | None = None
 
     def __post_init__(self) -> None:
         if self.frames and self.rebuild_seed != CREATION_SEED:

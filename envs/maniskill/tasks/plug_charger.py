@@ -45,13 +45,18 @@ def evaluate(env) -> dict[str, bool]:
 
 
 def initialize(env, env_idx, variant: ResetVariant) -> None:
-    import sapien
-    from transforms3d.euler import euler2quat
-
     from envs.maniskill.env import redraw_planar
 
     redraw_planar(env, env_idx, variant)
-    # the goal follows the receptacle, as in ManiSkill's own reset
+    restore(env)
+
+
+def restore(env) -> None:
+    """The goal follows the receptacle, as in ManiSkill's own reset; ManiSkill keeps it out
+    of the simulator's state, so a restored state needs it again."""
+    import sapien
+    from transforms3d.euler import euler2quat
+
     env.goal_pose = env.receptacle.pose * sapien.Pose(q=euler2quat(0, 0, math.pi))
 
 
@@ -97,4 +102,5 @@ TASK = ManiSkillTask(
     evaluate=evaluate,
     panda_uid="panda_wristcam",  # the only robot the task supports and resets
     initialize=initialize,
+    restore=restore,
 )
