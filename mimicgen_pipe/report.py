@@ -735,11 +735,13 @@ def suite_blocks(
     variants: Sequence[str],
     metrics: Mapping[str, Mapping[str, Any]],
     paper: PaperResults,
+    action_noise: float,
 ) -> list[Block]:
     """The task suite: per task x variant the DGR of the fixed attempts in metrics
-    generate_<task>_<variant>, the task failures per subtask (the first subtask an attempt
-    did not achieve), time and steps per attempt, beside the paper's Table O.1 DGR of the
-    task it stands for."""
+    generate_<task>_<variant>, the action-noise sigma they ran with (the suite's
+    ``action_noise``, or less where the task caps it), the task failures per subtask (the
+    first subtask an attempt did not achieve), time and steps per attempt, beside the
+    paper's Table O.1 DGR of the task it stands for."""
     rows = []
     for spec in specs:
         for v in variants:
@@ -763,20 +765,23 @@ def suite_blocks(
                     f"{spec.name} ({v})",
                     spec.paper_task,
                     ours,
+                    f"{spec.action_noise(action_noise):g}",
                     failures,
                     per_attempt,
                     ref[0].cite() if ref else "– (none in the paper)",
                 )
             )
-    columns = ("task (variant)", "paper task", "DGR % (kept/attempts)", "task failures per subtask",
-               "per attempt", "paper DGR")  # fmt: skip
+    columns = ("task (variant)", "paper task", "DGR % (kept/attempts)", "σ",
+               "task failures per subtask", "per attempt", "paper DGR")  # fmt: skip
     return [
         Heading(2, "Task suite: data generation rate per task"),
         Text(
             "Each task generated from its own 10 source demos (ManiSkill's motion planner), "
-            "a fixed number of attempts per reset variant (`suite/dvc.yaml`). Paper numbers "
-            "are Table O.1's for the task ours stands for; the paper's settings per task "
-            "(M.6) differ from ours (random selection, one source demo per episode)."
+            "a fixed number of attempts per reset variant (`suite/dvc.yaml`), with action "
+            "noise σ (paper M.4; a task file may cap it where its tolerances cannot take the "
+            "suite's). Paper numbers are Table O.1's for the task ours stands for; the "
+            "paper's settings per task (M.6) differ from ours (random selection, one source "
+            "demo per episode, σ 0.05 in robosuite's units)."
         ),
         Table(columns, tuple(rows)),
     ]

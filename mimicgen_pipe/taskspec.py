@@ -67,6 +67,9 @@ class TaskSpec:
     paper_task: the paper's task this one stands for (its name in the paper's tables).
     obs_keys: the policy's default low-dim observation (mimicgen_pipe.observations); empty:
         every key the task provides.
+    max_action_noise: the largest action-noise sigma (paper M.4) this task's tolerances
+        take; generation uses no more, whatever it is asked for (the paper, too, sets its
+        generation knobs per task, M.6). None: no cap.
     """
 
     name: str
@@ -76,6 +79,11 @@ class TaskSpec:
     horizon: int
     paper_task: str = ""
     obs_keys: tuple[str, ...] = ()
+    max_action_noise: float | None = None
+
+    def action_noise(self, sigma: float) -> float:
+        """The action-noise sigma generation uses when asked for ``sigma``."""
+        return sigma if self.max_action_noise is None else min(sigma, self.max_action_noise)
 
     @property
     def variants(self) -> tuple[str, ...]:
@@ -113,6 +121,8 @@ class TaskSpec:
             missing = [o for o in self.objects if o not in variant.bounds]
             if missing:
                 raise ValueError(f"task {self.name}: variant {name} lacks bounds of {missing}")
+        if self.max_action_noise is not None and not self.max_action_noise >= 0:
+            raise ValueError(f"task {self.name}: max_action_noise {self.max_action_noise} < 0")
         unknown = [k for k in self.obs_keys if k not in self.provided_obs_keys]
         if unknown:
             raise ValueError(f"task {self.name}: obs_keys {unknown} are not recorded")

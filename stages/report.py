@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> None:
     specs = [envs.task_spec(u.backend, task) for task in u.tasks]
     # O1 rows for the tasks generated on their object-transfer variant (the others lack it)
     variants_shown = [*u.variants, *(["O1"] if u.object_transfer else [])]
-    blocks += suite_blocks(specs, variants_shown, this_run.metrics, paper)
+    blocks += suite_blocks(specs, variants_shown, this_run.metrics, paper, u.action_noise)
     blocks += suite_policy_blocks(specs, this_run.metrics, paper)
     # ablation runs on suite tasks: metrics/suite_ablations/<task>/<run>/
     for task in u.tasks:

@@ -276,6 +276,24 @@ def test_suite_ablations_compare_with_their_own_default_run():
     assert "missing" in lone[-1].text and "action_noise_0, pose_noise_L2" in lone[-1].text
 
 
+def test_the_suite_table_states_the_action_noise_each_task_ran_with():
+    """plug_charger caps the noise (its 0.5 mm clearance); the others run at the suite's."""
+    from mimicgen_pipe.report import suite_blocks
+
+    paper = load_paper_results(PAPER)
+    specs = [envs.task_spec("maniskill", t) for t in ("pull_cube_tool", "plug_charger")]
+    timing = {"seconds_per_attempt_mean": 0.3, "steps": 40000}
+    metrics = {
+        "generate_pull_cube_tool_D0": gen_metrics(64.0) | timing,
+        "generate_plug_charger_D0": gen_metrics(60.0) | timing,
+    }
+    table = suite_blocks(specs, ["D0"], metrics, paper, 0.025)[-1]
+    rows = {r[0]: dict(zip(table.columns, r, strict=True)) for r in table.rows}
+    assert rows["pull_cube_tool (D0)"]["σ"] == "0.025"
+    assert rows["plug_charger (D0)"]["σ"] == "0"
+    assert "78.2" in rows["plug_charger (D0)"]["paper DGR"]
+
+
 def test_html_holds_the_same_tables_and_embeds_images():
     blocks = [Table(("a", "b"), (("1 < 2", "`x`"),)), Image("h.png", "heat map")]
     page = render_html(blocks, {"h.png": b"\x89PNG fake"}, "t")

@@ -117,3 +117,15 @@ def test_a_restored_state_brings_back_what_the_task_derived_at_reset():
         np.testing.assert_allclose(env.unwrapped.goal_pose.raw_pose.numpy(), goal, atol=1e-7)
     finally:
         env.close()
+
+
+def test_a_task_caps_the_action_noise_its_tolerances_take():
+    import dataclasses
+
+    plug = envs.task_spec("maniskill", "plug_charger")
+    assert plug.action_noise(0.025) == 0.0
+    assert envs.task_spec("maniskill", "peg_insertion").action_noise(0.025) == 0.025
+    capped = dataclasses.replace(plug, max_action_noise=0.01)
+    assert capped.action_noise(0.025) == 0.01 and capped.action_noise(0.005) == 0.005
+    with pytest.raises(ValueError, match="max_action_noise"):
+        dataclasses.replace(plug, max_action_noise=-0.01)
