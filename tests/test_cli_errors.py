@@ -140,3 +140,34 @@ def test_params_gaps_are_one_clear_error_at_load(tmp_path, params, expected):
     """Every stage loads params the same way; source stops before recording anything."""
     msg = run_bad(tmp_path, "source", params=params)
     assert expected in msg
+
+
+def test_source_stops_with_one_error_when_the_demonstrator_falls_short(tmp_path, monkeypatch):
+    """A demonstrator that gives fewer demos than source.num_demos within its seed budget is
+    an error naming the count, not a silently smaller source store."""
+    import argparse
+
+    import envs
+    from mimicgen_pipe.errors import InputError
+    from stages import source
+
+    real, seeds = envs.source_episodes, []
+
+    def first_demo_only(backend, env, num_demos, seed, from_file, work_dir):
+        seeds.append(seed)
+        if len(seeds) == 1:
+            return real(backend, env, 1, seed, from_file, work_dir)
+        return [], 1, 1  # every later seed's plan fails
+
+    monkeypatch.setattr(envs, "source_episodes", first_demo_only)
+    params = "task: stack\nbackend: pybullet\nsource: {num_demos: 2}\n"
+    (tmp_path / "params.yaml").write_text(params)
+    parser = argparse.ArgumentParser()
+    source.add_arguments(parser)
+    args = parser.parse_args(["--params", str(tmp_path / "params.yaml"),
+                              "--out", str(tmp_path / "s.zarr"),
+                              "--metrics", str(tmp_path / "s.json")])  # fmt: skip
+    with pytest.raises(InputError, match="gave 1 of source.num_demos = 2 demos .* in 40 seeds"):
+        source.run(args)
+    assert seeds[-1] == 39 and not (tmp_path / "s.zarr").exists()
+    assert not (tmp_path / "s.json").exists()

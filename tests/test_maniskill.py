@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -164,3 +165,45 @@ def test_fast_state_and_pose_reads_match_maniskill(env):
         np.testing.assert_allclose(
             env.object_poses()["cubeB"], poses.pose_from_pq(pq[:3], pq[3:]), atol=1e-12
         )
+
+
+def test_a_converted_demo_that_starts_from_another_plan_is_dropped(env, tmp_path, monkeypatch):
+    """ManiSkill's converter can join failed conversions onto the next plan's episode; the
+    joined episode (its seed's name, another plan's initial state) is not kept as a demo,
+    and counts as a dropped plan."""
+    import h5py
+
+    from envs.maniskill import source
+
+    def state_rows(seed: int, steps: int) -> dict:
+        env.reset(seed, "D0")
+        state = env.unwrapped.get_state_dict()
+        return {k: {n: np.repeat(v.numpy(), steps + 1, 0) for n, v in d.items()}
+                for k, d in state.items()}  # fmt: skip
+
+    def write(name: str, mode: str, episodes: list[tuple[int, dict, int]]) -> Path:
+        path = tmp_path / f"{name}.h5"
+        with h5py.File(path, "w") as f:
+            for i, (_, states, steps) in enumerate(episodes):
+                f[f"traj_{i}/actions"] = np.zeros((steps, 7 if mode != "pd_joint_pos" else 8))
+                for kind, arrays in states.items():
+                    for n, a in arrays.items():
+                        f[f"traj_{i}/env_states/{kind}/{n}"] = a[: steps + 1]
+        meta = {
+            "env_info": {"env_id": "StackCube-v1", "env_kwargs": {"control_mode": mode}},
+            "episodes": [
+                {"episode_id": i, "episode_seed": seed} for i, (seed, _, _) in enumerate(episodes)
+            ],
+        }
+        path.with_suffix(".json").write_text(json.dumps(meta))
+        return path
+
+    plans = [(s, state_rows(s, 4), 4) for s in (0, 1, 2)]
+    write("planned", "pd_joint_pos", plans)
+    # seed 1 failed to convert: the converter put its steps before seed 2's
+    joined = (2, state_rows(1, 8), 8)
+    converted = write("planned.pd_ee_delta_pose", "pd_ee_delta_pose", [plans[0], joined])
+    monkeypatch.setattr(source, "run_motion_planner", lambda *a: (converted, 3, 4))
+    episodes, dropped, tried = source.source_episodes(env, 3, 0, None, tmp_path)
+    assert [ep.seed for ep in episodes] == [0]
+    assert (dropped, tried) == (6, 7)  # 4 failed plans, seed 1's conversion, seed 2's join

@@ -228,14 +228,37 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     ManiSkill's converter could not turn into pd_ee_delta_pose), and the seeds tried."""
     from envs import SourceEpisode
 
-    def episodes(path: Path, allow_empty: bool = False) -> list:
-        eps = read_trajectory_file(path, env.spec.name, allow_empty)[:num_demos]
+    def episodes(eps: list[TrajectoryFileEpisode]) -> list:
         return [SourceEpisode(ep.seed, initial_state(env, ep), ep.actions) for ep in eps]
 
     if from_file is not None:
-        return episodes(Path(from_file)), 0, 0
+        return episodes(read_trajectory_file(from_file, env.spec.name)[:num_demos]), 0, 0
     traj_file, planned, failed = run_motion_planner(
         env.spec.name, env.agent_uid, num_demos, seed, work_dir, 10 * num_demos
     )
-    out = episodes(traj_file, allow_empty=True)  # the converter may keep none of the plans
+    # the converter may keep none of the plans
+    converted = read_trajectory_file(traj_file, env.spec.name, allow_empty=True)
+    # ManiSkill 3.0.1's converter puts the steps of the plans it failed to convert in front
+    # of the next plan it converts, from the first failed plan's initial state, with an
+    # uninitialised action at each join: such an episode is not its seed's demo (and is not
+    # the same from one run to the next), so it is dropped as a failed conversion
+    starts = planned_initial_states(work_dir / "planned.h5")
+    out = episodes([ep for ep in converted if _same_state(ep.initial_state, starts[ep.seed])])
     return out, failed + planned - len(out), planned + failed
+
+
+def planned_initial_states(path: Path) -> dict[int, dict]:
+    """The initial state dict of every episode of the planner's trajectory file, by seed."""
+    meta = json.loads(path.with_suffix(".json").read_text())
+    with h5py.File(path, "r") as f:
+        return {
+            int(ep["episode_seed"]): _initial_state(f[f"traj_{ep['episode_id']}"]["env_states"])
+            for ep in meta["episodes"]
+        }
+
+
+def _same_state(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(
+        a[k].keys() == b[k].keys() and all(np.array_equal(a[k][n], b[k][n]) for n in a[k])
+        for k in a
+    )
