@@ -97,7 +97,7 @@ TASK = ManiSkillTask(
             "D1": _variant(22.5 * DEG),
             "D2": _variant(45 * DEG),
         },
-        horizon=200,
+        horizon=300,  # generated demos take 185 steps (median), up to 244
         paper_task="Coffee",
         max_action_noise=0.0,
     ),
