@@ -74,12 +74,13 @@ def run(args: argparse.Namespace) -> None:
         params = dataclasses.replace(params, generate=g)
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
-    if spec.action_noise(g.action_noise) != g.action_noise:
+    sigma = spec.action_noise(g.action_noise)
+    if sigma != g.action_noise:
         print(
-            f"generate: action noise sigma {spec.action_noise(g.action_noise)}, not "
-            f"{g.action_noise}: {params.task}'s max_action_noise (its task file)"
+            f"generate: action noise sigma {sigma}, not {g.action_noise}: "
+            f"{params.task}'s max_action_noise (its task file)"
         )
-        g = dataclasses.replace(g, action_noise=spec.action_noise(g.action_noise))
+        g = dataclasses.replace(g, action_noise=sigma)
         params = dataclasses.replace(params, generate=g)
     envs.check_robot(params.backend, g.robot)
     parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
