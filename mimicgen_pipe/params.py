@@ -94,7 +94,7 @@ class TrainProfile:
     steps_per_epoch: int = 100
     checkpoint_every: int = 50
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
-    threads: int = 0  # torch CPU threads; 0 keeps torch's default
+    threads: int = 0  # torch CPU threads per training; 0 keeps torch's default
     device: Literal["cpu", "cuda", "auto"] = "auto"  # auto: cuda when available
 
 
@@ -103,15 +103,23 @@ class TrainParams:
     """profile: which of the two profiles below trains. num_demos: generated demos used
     (the first N kept episodes; the source policy uses every source demo). obs_keys: the
     policy's observation, keys of obs/ in the stores (mimicgen_pipe.observations); None:
-    the task's own (its spec's default_obs_keys), filled in by stages.stage_params."""
+    the task's own (its spec's default_obs_keys), filled in by stages.stage_params.
+    workers: trainings side by side (one process each) when a stage trains several policies
+    or seeds."""
 
     profile: Literal["cpu", "paper"] = "cpu"
+    workers: int = 1
     num_demos: int = 1000
     obs_keys: list[str] | None = None
     val_fraction: float = 0.1
     cpu: TrainProfile = field(
         default_factory=lambda: TrainProfile(
-            hidden=100, epochs=200, checkpoint_every=25, seeds=[0], threads=1, device="cpu"
+            hidden=100,
+            epochs=200,
+            checkpoint_every=25,
+            seeds=[0],
+            threads=1,
+            device="cpu",
         )
     )
     paper: TrainProfile = field(default_factory=TrainProfile)
@@ -247,6 +255,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "train.*.steps_per_epoch": (1, 1_000_000),
     "train.*.checkpoint_every": (1, 1_000_000),
     "train.*.threads": (0, 1024),
+    "train.workers": (1, 256),
     "evaluate.episodes": (1, 100_000),
     "evaluate.workers": (1, 256),
     "export.workers": (1, 256),
@@ -398,13 +407,22 @@ def as_dict(params: Any) -> dict[str, Any]:
 
 # Keys that cannot change a stage's data (process counts), left out of what stores record and
 # of the params dvc.yaml declares for the stage, so that changing them re-runs nothing.
-_NOT_DATA = {"generate": ("workers", "executor", "variants")}
+_NOT_DATA = {"generate": ("workers", "executor", "variants"), "train": ("workers",)}
 
 
 def stage_executor(params: Params, stage: Literal["generate", "evaluate"]) -> Executor:
     """Where a stage's blocks run: its ``executor`` and ``workers`` keys, and ``ray``."""
     section = params.generate if stage == "generate" else params.evaluate
     return Executor(section.executor, section.workers, params.ray.address)
+
+
+def training_params(train: TrainParams) -> dict[str, Any]:
+    """train params as a checkpoint records them: without the profiles' worker counts, which
+    decide how many trainings run side by side, not what any of them learns."""
+    t = as_dict(train)
+    for key in _NOT_DATA["train"]:
+        del t[key]
+    return t
 
 
 def data_params(params: Params, stage: Literal["source", "generate"]) -> dict[str, Any]:

@@ -6,15 +6,17 @@ from __future__ import annotations
 import os
 import pickle
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
 from mimicgen_pipe.store import EpisodeStore
 
@@ -248,6 +250,77 @@ def train_policy(
         if epoch % config.checkpoint_every == 0 or epoch == config.epochs:
             on_checkpoint(epoch, model)  # save_checkpoint stores CPU tensors
     return history
+
+
+@dataclass(frozen=True)
+class TrainingRun:
+    """One training: ``seed`` on ``train_data``, validated on ``val_data``. ``label`` names it
+    on its progress bar, drawn on terminal line ``position`` (runs side by side each have
+    their own line)."""
+
+    train_data: SequenceData
+    val_data: SequenceData
+    policy: PolicyConfig
+    config: TrainConfig
+    seed: int
+    label: str = "train"
+    position: int = 0
+
+
+def run_training(
+    run: TrainingRun,
+) -> tuple[list[dict[str, float]], list[tuple[int, dict[str, torch.Tensor]]]]:
+    """:func:`train_policy` with a progress bar: its rows, and the model's CPU state dict at
+    every checkpoint epoch, (epoch, state)."""
+    states: list[tuple[int, dict[str, torch.Tensor]]] = []
+    bar = tqdm(
+        total=run.config.epochs, desc=run.label, unit="epoch", position=run.position, leave=True
+    )
+
+    def checkpoint(epoch: int, model: BCRNN) -> None:
+        states.append((epoch, {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}))
+
+    def progress(epoch: int, row: dict[str, float]) -> None:
+        bar.update(1)
+        bar.set_postfix(loss=f"{row['loss']:.2f}", val=f"{row['val_loss']:.2f}")
+
+    try:
+        history = train_policy(
+            run.train_data, run.val_data, run.policy, run.config, run.seed, checkpoint, progress
+        )
+    finally:
+        bar.close()
+    return history, states
+
+
+def _set_threads(threads: int) -> None:
+    if threads:
+        torch.set_num_threads(threads)
+
+
+def run_trainings(
+    runs: Sequence[TrainingRun], workers: int, threads: int
+) -> Iterator[tuple[list[dict[str, float]], list[tuple[int, BCRNN]]]]:
+    """:func:`run_training` of every run, results in run order: its rows and its model at
+    every checkpoint epoch, (epoch, model). Runs train on ``workers`` processes side by side
+    (in this process when 1), each with ``threads`` torch threads (0: torch's default).
+
+    A run's result does not depend on which process trained it or what ran beside it: every
+    run seeds its own generators, and each process does the same arithmetic for a fixed
+    thread count. The models are rebuilt here around the caller's own ``run.policy``, so
+    that a checkpoint of them pickles to the same bytes whichever process trained it (pickle
+    shares strings by identity, e.g. the observation keys of the config and of the meta)."""
+    results = map_blocks(run_training, runs, Executor("local", workers), _set_threads, (threads,))
+    try:
+        for run, (history, states) in zip(runs, results, strict=True):
+            models = []
+            for epoch, state in states:
+                model = BCRNN(run.policy)
+                model.load_state_dict(state)
+                models.append((epoch, model))
+            yield history, models
+    finally:
+        results.close()
 
 
 def default_device() -> str:

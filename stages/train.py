@@ -1,15 +1,17 @@
-"""train: BC-RNN policies on the source demos or on a generated dataset, one run per
-training seed of the active profile (params train.profile)."""
+"""train: BC-RNN policies on the source demos or on generated datasets, one run per
+training seed of the active profile (params train.profile). Given several datasets
+(``--data source D0 D1``) it trains them side by side, ``train.workers`` processes at a time:
+DVC runs one stage at a time, and one training keeps one core busy."""
 
 from __future__ import annotations
 
 import argparse
 import csv
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 import envs
 from mimicgen_pipe import layout
@@ -17,17 +19,18 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import claim, output_set
-from mimicgen_pipe.params import as_dict
+from mimicgen_pipe.params import Params, training_params
 from mimicgen_pipe.policy import PolicyConfig
 from mimicgen_pipe.store import read_store
 from mimicgen_pipe.training import (
     TrainConfig,
+    TrainingRun,
     dataset_from_store,
     default_device,
+    run_trainings,
     save_checkpoint,
     split_episodes,
     subset,
-    train_policy,
 )
 from stages import add_selection_arguments, stage_params
 
@@ -39,13 +42,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--data",
         required=True,
-        help='training data: "source" (the source demos) or a reset variant such as D1 '
-        "(that variant's generated store)",
+        nargs="+",
+        help='training data, one policy each: "source" (the source demos) or a reset variant '
+        "such as D1 (that variant's generated store)",
     )
-    p.add_argument("--store", help="store to train on (default: from --data, see layout)")
-    p.add_argument("--out", help="checkpoint directory (default: data/policies/<task>_<data>)")
-    p.add_argument("--metrics", help="metrics JSON (default: metrics/train_<task>_<data>.json)")
-    p.add_argument("--plot", help="training curve CSV (default: plots/train_<task>_<data>.csv)")
+    p.add_argument(
+        "--store",
+        nargs="+",
+        help="store to train on, one per --data (default: from --data, see layout)",
+    )
+    p.add_argument(
+        "--out", help="checkpoint directory, one --data only (default: data/policies/<task>_<data>)"
+    )
+    p.add_argument(
+        "--metrics",
+        help="metrics JSON, one --data only (default: metrics/train_<task>_<data>.json)",
+    )
+    p.add_argument(
+        "--plot",
+        help="training curve CSV, one --data only (default: plots/train_<task>_<data>.csv)",
+    )
 
 
 def write_curve(path: Path, rows: list[dict]) -> None:
@@ -56,41 +72,64 @@ def write_curve(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
+@dataclass(frozen=True)
+class Policy:
+    """One policy this stage trains: on ``data`` read from ``store``, written to ``out``
+    (checkpoints), ``metrics`` and ``plot`` (training curve)."""
+
+    data: str
+    store: Path
+    out: Path
+    metrics: Path
+    plot: Path
+
+
+def policies(args: argparse.Namespace, params: Params) -> list[Policy]:
+    """The policies the command line asks for, checked before any work."""
+    data: list[str] = args.data
+    if len(set(data)) != len(data):
+        raise InputError(f"--data {' '.join(data)}: each dataset at most once")
+    if args.store is not None and len(args.store) != len(data):
+        raise InputError(
+            f"--store: expected one store per --data ({len(data)}), got {len(args.store)}"
+        )
+    named = [f"--{k}" for k in ("out", "metrics", "plot") if getattr(args, k) is not None]
+    if named and len(data) > 1:
+        raise InputError(f"{', '.join(named)}: name one training's outputs, give one --data")
+    spec = envs.task_spec(params.backend, params.task)
+    for d in data:
+        if d != "source":
+            envs.check_variant(spec, d)
+    stores = args.store or [layout.training_store(params.task, d) for d in data]
+    return [
+        Policy(
+            d,
+            Path(store),
+            Path(args.out or layout.policy_dir(params.task, d)),
+            Path(args.metrics or layout.metrics_file("train", params.task, d)),
+            Path(args.plot or layout.plot_file("train", params.task, d)),
+        )
+        for d, store in zip(data, stores, strict=True)
+    ]
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     t, prof = params.train, params.train.active
-    spec = envs.task_spec(params.backend, params.task)
-    if args.data != "source":
-        envs.check_variant(spec, args.data)
     if not prof.seeds:
         raise InputError(f"{args.params}: train.{t.profile}.seeds: expected at least one seed")
-    store_path = Path(args.store or layout.training_store(params.task, args.data))
-    out = Path(args.out or layout.policy_dir(params.task, args.data))
-    metrics_path = Path(args.metrics or layout.metrics_file("train", params.task, args.data))
-    plot_path = Path(args.plot or layout.plot_file("train", params.task, args.data))
-    claim(out, metrics_path, plot_path)  # fails at once if another run writes them
-
-    store = read_store(
-        store_path,
-        required=["actions"],
-        task=params.task,
-        kind="source" if args.data == "source" else "generated",
-    )
-    data, dims = dataset_from_store(
-        store, t.obs_keys, None if args.data == "source" else t.num_demos
-    )
-    train_eps, val_eps = split_episodes(
-        data.n_episodes, t.val_fraction, np.random.default_rng(SPLIT_SEED)
-    )
-    train_data, val_data = subset(data, train_eps), subset(data, val_eps)
-    policy = PolicyConfig(
-        tuple(t.obs_keys),
-        dims,
-        int(data.actions.shape[1]),
-        hidden=prof.hidden,
-        layers=prof.layers,
-        seq_len=prof.seq_len,
-    )
+    todo = policies(args, params)
+    # fails at once if another run writes them
+    claim(*(path for p in todo for path in (p.out, p.metrics, p.plot)))
+    stores = [
+        read_store(
+            p.store,
+            required=["actions"],
+            task=params.task,
+            kind="source" if p.data == "source" else "generated",
+        )
+        for p in todo
+    ]
     config = TrainConfig(
         prof.hidden,
         prof.layers,
@@ -104,71 +143,95 @@ def run(args: argparse.Namespace) -> None:
         device=prof.device if prof.device != "auto" else default_device(),
         lr_schedule=prof.lr_schedule,
     )
-    meta = {
-        "task": params.task,
-        "backend": params.backend,
-        "robot": store.attrs.get("robot"),
-        "data": args.data,
-        "store": str(store_path),
-        # the generate run whose data this is (none for source demos): the report checks it
-        "data_run_id": store.attrs.get("run_id"),
-        "control_mode": store.attrs.get("control_mode"),
-        "train_episodes": int(train_data.n_episodes),
-        "val_episodes": int(val_data.n_episodes),
-        "train_params": as_dict(t),
-    }
-    if prof.threads:
-        torch.set_num_threads(prof.threads)
-    rows: list[dict] = []
-    at = {"seed": prof.seeds[0], "epoch": 0}  # how far training got, for an interrupt
-    # checkpoints, curve and metrics are written aside and renamed together, checkpoints last
-    with output_set(plot_path, metrics_path, out) as (tmp_plot, tmp_metrics, tmp):
-        tmp.mkdir()
+    runs: list[TrainingRun] = []
+    metas: list[dict] = []
+    for p, store in zip(todo, stores, strict=True):
+        data, dims = dataset_from_store(
+            store, t.obs_keys, None if p.data == "source" else t.num_demos
+        )
+        train_eps, val_eps = split_episodes(
+            data.n_episodes, t.val_fraction, np.random.default_rng(SPLIT_SEED)
+        )
+        train_data, val_data = subset(data, train_eps), subset(data, val_eps)
+        policy = PolicyConfig(
+            tuple(t.obs_keys),
+            dims,
+            int(data.actions.shape[1]),
+            hidden=prof.hidden,
+            layers=prof.layers,
+            seq_len=prof.seq_len,
+        )
         for seed in prof.seeds:
-            bar = tqdm(total=prof.epochs, desc=f"train {args.data} seed {seed}", unit="epoch")
-            at.update(seed=seed, epoch=0)
-
-            def checkpoint(epoch: int, model, seed: int = seed) -> None:
-                path = tmp / f"seed{seed}" / f"epoch{epoch:05d}.pt"
-                step = epoch * prof.steps_per_epoch
-                save_checkpoint(path, model, {**meta, "seed": seed, "epoch": epoch, "step": step})
-
-            def progress(epoch: int, row: dict, bar=bar) -> None:
-                at["epoch"] = epoch
-                bar.update(1)
-                bar.set_postfix(loss=f"{row['loss']:.2f}", val=f"{row['val_loss']:.2f}")
-
-            try:
-                history = train_policy(
-                    train_data, val_data, policy, config, seed, checkpoint, progress
-                )
-            except Interrupted as exc:
-                exc.detail = f"in training seed {at['seed']} at epoch {at['epoch']}/{prof.epochs}"
-                raise
-            finally:
-                bar.close()
-            rows += [{"seed": seed, **r} for r in history]
-        write_curve(tmp_plot, rows)
-        last = [r for r in rows if r["epoch"] == prof.epochs]
-        seconds = sum(r["seconds"] for r in last)
-        steps = prof.epochs * prof.steps_per_epoch * len(prof.seeds)
-        write_metrics(
-            tmp_metrics,
+            label = f"train {p.data} seed {seed}"
+            runs.append(TrainingRun(train_data, val_data, policy, config, seed, label, len(runs)))
+        metas.append(
             {
-                "profile": t.profile,
-                "seeds": len(prof.seeds),
-                "data_run_id": meta["data_run_id"],
+                "task": params.task,
+                "backend": params.backend,
+                "robot": store.attrs.get("robot"),
+                "data": p.data,
+                "store": str(p.store),
+                # the generate run whose data this is (none for source demos): the report
+                # checks it
+                "data_run_id": store.attrs.get("run_id"),
+                "control_mode": store.attrs.get("control_mode"),
                 "train_episodes": int(train_data.n_episodes),
                 "val_episodes": int(val_data.n_episodes),
-                "gradient_steps": steps,
-                "final_loss": float(np.mean([r["loss"] for r in last])),
-                "final_val_loss": float(np.mean([r["val_loss"] for r in last])),
-                "wall_seconds": seconds,
-                "seconds_per_1000_steps": 1000 * seconds / steps,
-                "torch_threads": torch.get_num_threads(),
-            },
+                "train_params": training_params(t),
+            }
         )
-    print(
-        f"train: {len(prof.seeds)} run(s) on {data.n_episodes} episodes of {store_path}, "
-        f"{1000 * seconds / steps:.1f} s per 1000 steps -> {out}"
-    )
+    side_by_side = min(t.workers, len(runs))
+    finished = 0
+    # every policy's checkpoints, curve and metrics are written aside and renamed together
+    # when all have trained, checkpoints last
+    outputs = [p.plot for p in todo] + [p.metrics for p in todo] + [p.out for p in todo]
+    with output_set(*outputs) as tmps:
+        n = len(todo)
+        tmp_plots, tmp_metrics, tmp_outs = tmps[:n], tmps[n : 2 * n], tmps[2 * n :]
+        results = run_trainings(runs, side_by_side, prof.threads)
+        histories: list[list[dict]] = []
+        try:
+            for run_, (history, checkpoints) in zip(runs, results, strict=True):
+                k = len(histories) // len(prof.seeds)  # the policy this run trains
+                for epoch, model in checkpoints:
+                    step = epoch * prof.steps_per_epoch
+                    meta = {**metas[k], "seed": run_.seed, "epoch": epoch, "step": step}
+                    save_checkpoint(
+                        tmp_outs[k] / f"seed{run_.seed}" / f"epoch{epoch:05d}.pt", model, meta
+                    )
+                histories.append(history)
+                finished += 1
+        except Interrupted as exc:
+            exc.detail = f"with {finished} of {len(runs)} trainings finished"
+            raise
+        for i, (p, meta) in enumerate(zip(todo, metas, strict=True)):
+            per_seed = histories[i * len(prof.seeds) : (i + 1) * len(prof.seeds)]
+            rows = [
+                {"seed": seed, **r} for seed, h in zip(prof.seeds, per_seed, strict=True) for r in h
+            ]
+            write_curve(tmp_plots[i], rows)
+            last = [r for r in rows if r["epoch"] == prof.epochs]
+            seconds = sum(r["seconds"] for r in last)
+            steps = prof.epochs * prof.steps_per_epoch * len(prof.seeds)
+            write_metrics(
+                tmp_metrics[i],
+                {
+                    "profile": t.profile,
+                    "seeds": len(prof.seeds),
+                    "data_run_id": meta["data_run_id"],
+                    "train_episodes": meta["train_episodes"],
+                    "val_episodes": meta["val_episodes"],
+                    "gradient_steps": steps,
+                    "final_loss": float(np.mean([r["loss"] for r in last])),
+                    "final_val_loss": float(np.mean([r["val_loss"] for r in last])),
+                    "wall_seconds": seconds,
+                    "seconds_per_1000_steps": 1000 * seconds / steps,
+                    "torch_threads": prof.threads or torch.get_num_threads(),
+                    "trainings_side_by_side": side_by_side,
+                },
+            )
+            episodes = meta["train_episodes"] + meta["val_episodes"]
+            print(
+                f"train: {len(prof.seeds)} run(s) on {episodes} episodes of {p.store}, "
+                f"{1000 * seconds / steps:.1f} s per 1000 steps -> {p.out}"
+            )

@@ -178,3 +178,44 @@ def test_train_and_evaluate_refuse_bad_input_before_work(pipeline):
     assert (pipeline / "plots/ray.csv").read_text() == (
         pipeline / "plots/evaluate_stack_cube_D1_on_D1.csv"
     ).read_text()
+
+
+def test_trainings_side_by_side_write_what_trainings_one_by_one_write(pipeline):
+    """Two policies x two seeds trained by one command on two processes give the bytes that
+    training each policy alone, in this process, gives."""
+    (pipeline / "tiny.yaml").write_text(TINY)
+    (pipeline / "side.yaml").write_text(
+        TINY.replace("num_demos: 4\n  cpu", "num_demos: 4\n  workers: 2\n  cpu")
+    )
+    cli("train", "--params", "side.yaml", "--data", "source", "D1", cwd=pipeline)
+    for data in ("source", "D1"):
+        alone = [f"--out=alone/{data}", f"--metrics=alone/{data}.json", f"--plot=alone/{data}.csv"]
+        cli("train", "--params", "tiny.yaml", "--data", data, *alone, cwd=pipeline)
+        side = pipeline / f"data/policies/stack_cube_{data}"
+        files = sorted(p.relative_to(side) for p in side.rglob("*.pt"))
+        assert len(files) == 4  # 2 seeds x 2 epochs
+        for f in files:
+            assert (side / f).read_bytes() == (pipeline / "alone" / data / f).read_bytes(), f
+        m = json.loads((pipeline / f"metrics/train_stack_cube_{data}.json").read_text())
+        assert m["trainings_side_by_side"] == 2
+        assert (
+            json.loads((pipeline / f"alone/{data}.json").read_text())["trainings_side_by_side"] == 1
+        )
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--data", "D1", "D1"], "--data D1 D1: each dataset at most once"),
+        (["--data", "source", "D1", "--store", "a.zarr"], "--store: expected one store per --data"),
+        (["--data", "source", "D1", "--out", "x"], "--out: name one training's outputs"),
+        (["--data", "source", "D7"], "D7"),
+    ],
+)  # fmt: skip
+def test_train_refuses_a_bad_list_of_datasets_before_work(pipeline, args, message):
+    (pipeline / "tiny.yaml").write_text(TINY)
+    before = sorted(p for p in (pipeline / "data").rglob("*") if "policies" in p.parts)
+    res = cli("train", "--params", "tiny.yaml", *args, cwd=pipeline, check=False)
+    assert res.returncode == 2 and message in res.stderr, res.stderr
+    assert sorted(p for p in (pipeline / "data").rglob("*") if "policies" in p.parts) == before
+    assert not (pipeline / "x").exists()
