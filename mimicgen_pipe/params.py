@@ -114,12 +114,7 @@ class TrainParams:
     val_fraction: float = 0.1
     cpu: TrainProfile = field(
         default_factory=lambda: TrainProfile(
-            hidden=100,
-            epochs=200,
-            checkpoint_every=25,
-            seeds=[0],
-            threads=1,
-            device="cpu",
+            hidden=100, epochs=200, checkpoint_every=25, seeds=[0], threads=1, device="cpu"
         )
     )
     paper: TrainProfile = field(default_factory=TrainProfile)
@@ -417,8 +412,8 @@ def stage_executor(params: Params, stage: Literal["generate", "evaluate"]) -> Ex
 
 
 def training_params(train: TrainParams) -> dict[str, Any]:
-    """train params as a checkpoint records them: without the profiles' worker counts, which
-    decide how many trainings run side by side, not what any of them learns."""
+    """train params as a checkpoint records them: without the worker count, which decides how
+    many trainings run side by side, not what any of them learns."""
     t = as_dict(train)
     for key in _NOT_DATA["train"]:
         del t[key]

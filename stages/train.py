@@ -144,8 +144,9 @@ def run(args: argparse.Namespace) -> None:
         lr_schedule=prof.lr_schedule,
     )
     runs: list[TrainingRun] = []
+    owners: list[int] = []  # the policy each run trains
     metas: list[dict] = []
-    for p, store in zip(todo, stores, strict=True):
+    for k, (p, store) in enumerate(zip(todo, stores, strict=True)):
         data, dims = dataset_from_store(
             store, t.obs_keys, None if p.data == "source" else t.num_demos
         )
@@ -164,6 +165,7 @@ def run(args: argparse.Namespace) -> None:
         for seed in prof.seeds:
             label = f"train {p.data} seed {seed}"
             runs.append(TrainingRun(train_data, val_data, policy, config, seed, label, len(runs)))
+            owners.append(k)
         metas.append(
             {
                 "task": params.task,
@@ -181,7 +183,6 @@ def run(args: argparse.Namespace) -> None:
             }
         )
     side_by_side = min(t.workers, len(runs))
-    finished = 0
     # every policy's checkpoints, curve and metrics are written aside and renamed together
     # when all have trained, checkpoints last
     outputs = [p.plot for p in todo] + [p.metrics for p in todo] + [p.out for p in todo]
@@ -189,26 +190,22 @@ def run(args: argparse.Namespace) -> None:
         n = len(todo)
         tmp_plots, tmp_metrics, tmp_outs = tmps[:n], tmps[n : 2 * n], tmps[2 * n :]
         results = run_trainings(runs, side_by_side, prof.threads)
-        histories: list[list[dict]] = []
+        curves: list[list[dict]] = [[] for _ in todo]  # one row per (seed, epoch)
+        finished = 0
         try:
-            for run_, (history, checkpoints) in zip(runs, results, strict=True):
-                k = len(histories) // len(prof.seeds)  # the policy this run trains
+            for k, run_, (history, checkpoints) in zip(owners, runs, results, strict=True):
                 for epoch, model in checkpoints:
                     step = epoch * prof.steps_per_epoch
                     meta = {**metas[k], "seed": run_.seed, "epoch": epoch, "step": step}
                     save_checkpoint(
                         tmp_outs[k] / f"seed{run_.seed}" / f"epoch{epoch:05d}.pt", model, meta
                     )
-                histories.append(history)
+                curves[k] += [{"seed": run_.seed, **r} for r in history]
                 finished += 1
         except Interrupted as exc:
             exc.detail = f"with {finished} of {len(runs)} trainings finished"
             raise
-        for i, (p, meta) in enumerate(zip(todo, metas, strict=True)):
-            per_seed = histories[i * len(prof.seeds) : (i + 1) * len(prof.seeds)]
-            rows = [
-                {"seed": seed, **r} for seed, h in zip(prof.seeds, per_seed, strict=True) for r in h
-            ]
+        for i, (p, meta, rows) in enumerate(zip(todo, metas, curves, strict=True)):
             write_curve(tmp_plots[i], rows)
             last = [r for r in rows if r["epoch"] == prof.epochs]
             seconds = sum(r["seconds"] for r in last)
