@@ -10,6 +10,7 @@ from typing import Protocol
 
 import numpy as np
 
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.generation import Env
 from mimicgen_pipe.observations import low_dim_observation
@@ -23,6 +24,23 @@ def evaluation_seed(seed: int, variant: str, episode: int) -> int:
     the source and generate stages use."""
     ss = np.random.SeedSequence([seed, int.from_bytes(variant.encode(), "little"), episode, 7])
     return EVAL_SEED_BASE + int(ss.generate_state(1, np.uint32)[0] % EVAL_SEED_BASE)
+
+
+def evaluated_checkpoints(epochs: Sequence[int], every_epochs: int) -> list[int]:
+    """Indices of the checkpoints (their epochs, in training order) that are rolled out: each
+    one whose epoch is a multiple of ``every_epochs``, and the last, so that the last success
+    rate is the end of training's. Raises InputError when a multiple up to the last epoch has
+    no checkpoint: the selection would skip it silently."""
+    have = set(epochs)
+    missing = [e for e in range(every_epochs, epochs[-1] + 1, every_epochs) if e not in have]
+    if missing:
+        raise InputError(
+            f"evaluate.every_epochs is {every_epochs}, but there is no checkpoint of epoch "
+            f"{missing[0]} (checkpoints: epochs {list(epochs)}); expected a multiple of the "
+            "training's checkpoint_every"
+        )
+    last = len(epochs) - 1
+    return [i for i, e in enumerate(epochs) if e % every_epochs == 0 or i == last]
 
 
 class Policy(Protocol):

@@ -126,10 +126,13 @@ class TrainParams:
 
 @dataclass(frozen=True)
 class EvaluateParams:
-    """episodes: rollouts per checkpoint. seed: evaluation seed stream (reset seeds are
-    disjoint from generation's whatever its value). workers, executor: as for generate."""
+    """episodes: rollouts per checkpoint. every_epochs: the checkpoints rolled out are those
+    of every ``every_epochs``-th epoch and the last (a multiple of the training's
+    checkpoint_every). seed: evaluation seed stream (reset seeds are disjoint from
+    generation's whatever its value). workers, executor: as for generate."""
 
     episodes: int = 50
+    every_epochs: int = 50
     seed: int = 0
     workers: int = 2
     executor: Literal["local", "ray"] = "local"
@@ -252,6 +255,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "train.*.threads": (0, 1024),
     "train.workers": (1, 256),
     "evaluate.episodes": (1, 100_000),
+    "evaluate.every_epochs": (1, 1_000_000),
     "evaluate.workers": (1, 256),
     "export.workers": (1, 256),
     "render.episodes": (0, 1000),

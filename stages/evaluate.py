@@ -1,4 +1,5 @@
-"""evaluate: roll out every checkpoint of a training run in one reset variant."""
+"""evaluate: roll out a training run's checkpoints (every ``evaluate.every_epochs``-th epoch
+and the last) in one reset variant."""
 
 from __future__ import annotations
 
@@ -14,7 +15,12 @@ from tqdm import tqdm
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.evaluation import EvalJob, evaluation_seed, run_evaluation
+from mimicgen_pipe.evaluation import (
+    EvalJob,
+    evaluated_checkpoints,
+    evaluation_seed,
+    run_evaluation,
+)
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import evaluation_metrics, write_metrics
 from mimicgen_pipe.observations import observation_dims
@@ -83,8 +89,17 @@ def run(args: argparse.Namespace) -> None:
         epochs[ckpt] = int(meta["epoch"])
         data_run_ids[str(ckpt)] = meta.get("data_run_id")
     check_same_run(data_run_ids, "train")  # checkpoints of one training run only
-
     e = params.evaluate
+    try:
+        runs = {
+            seed: [
+                ckpts[i] for i in evaluated_checkpoints([epochs[c] for c in ckpts], e.every_epochs)
+            ]
+            for seed, ckpts in runs.items()
+        }
+    except InputError as exc:
+        raise InputError(f"{policies}: {exc}") from None
+
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
     job = EvalJob(
         make_env=functools.partial(
@@ -120,6 +135,7 @@ def run(args: argparse.Namespace) -> None:
     metrics.update(
         data_run_id=next(iter(data_run_ids.values())),
         episodes=e.episodes,
+        every_epochs=e.every_epochs,
         horizon=spec.horizon,
         wall_seconds=wall,
         seconds_per_episode=wall / (len(names) * e.episodes),

@@ -9,7 +9,7 @@ import torch
 
 from mimicgen_pipe import poses
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.evaluation import EVAL_SEED_BASE, evaluation_seed
+from mimicgen_pipe.evaluation import EVAL_SEED_BASE, evaluated_checkpoints, evaluation_seed
 from mimicgen_pipe.metrics import evaluation_metrics
 from mimicgen_pipe.observations import low_dim_observation, observation_dims, observation_keys
 from mimicgen_pipe.params import load_params
@@ -159,6 +159,16 @@ def test_evaluation_metrics_max_last_mean_std():
     assert m["success_rate_max"] == 90.0 and m["success_rate_max_std"] == 10.0
     assert m["success_rate_last"] == 80.0 and m["success_rate_last_std"] == 20.0
     assert m["seed0_best_epoch"] == 20 and m["checkpoints"] == 3
+
+
+def test_evaluated_checkpoints_every_nth_epoch_and_the_last():
+    every25 = list(range(25, 201, 25))
+    assert evaluated_checkpoints(every25, 50) == [1, 3, 5, 7]  # epochs 50, 100, 150, 200
+    assert evaluated_checkpoints(every25, 25) == list(range(8))
+    assert evaluated_checkpoints([25, 50, 60], 50) == [1, 2]  # the last, off the grid
+    assert evaluated_checkpoints([25, 50], 100) == [1]  # only the last
+    with pytest.raises(InputError, match="no checkpoint of epoch 50 .*epochs \\[25, 75, 100\\]"):
+        evaluated_checkpoints([25, 75, 100], 50)
 
 
 def test_observation_quaternions_do_not_flip_sign():

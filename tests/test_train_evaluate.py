@@ -25,7 +25,7 @@ train:
   num_demos: 4
   cpu: {hidden: 16, layers: 1, seq_len: 10, batch_size: 8, lr: 0.001, epochs: 2,
         steps_per_epoch: 5, checkpoint_every: 1, seeds: [0, 1]}
-evaluate: {episodes: 2, workers: 1}
+evaluate: {episodes: 2, every_epochs: 1, workers: 1}
 """
 
 
@@ -110,6 +110,16 @@ def test_train_and_evaluate_stages(pipeline):
     assert m["success_rate_max"] == pytest.approx(np.mean(best))
     assert m["success_rate_last"] == pytest.approx(np.mean([rates[("0", "2")], rates[("1", "2")]]))
 
+    # every 2nd epoch: only epoch 2 of each run is rolled out, from the same scenes
+    (pipeline / "every2.yaml").write_text(TINY.replace("every_epochs: 1", "every_epochs: 2"))
+    cli("evaluate", "--params", "every2.yaml", "--data", "D1", "--variant", "D1",
+        "--metrics", "metrics/every2.json", "--plot", "plots/every2.csv", cwd=pipeline)  # fmt: skip
+    rows2 = list(csv.DictReader((pipeline / "plots/every2.csv").open()))
+    assert [(r["seed"], r["epoch"]) for r in rows2] == [("0", "2"), ("1", "2")]
+    assert all(float(r["success_rate"]) == rates[(r["seed"], "2")] for r in rows2)
+    m2 = json.loads((pipeline / "metrics/every2.json").read_text())
+    assert (m2["checkpoints"], m2["every_epochs"]) == (1, 2)
+
 
 def test_train_and_evaluate_refuse_bad_input_before_work(pipeline):
     (pipeline / "tiny.yaml").write_text(TINY)
@@ -169,8 +179,8 @@ def test_train_and_evaluate_refuse_bad_input_before_work(pipeline):
     # the same evaluation as Ray tasks on a local Ray: the same success per checkpoint
     (pipeline / "tiny_ray.yaml").write_text(
         TINY.replace(
-            "evaluate: {episodes: 2, workers: 1}",
-            "evaluate: {episodes: 2, workers: 2, executor: ray}",
+            "evaluate: {episodes: 2, every_epochs: 1, workers: 1}",
+            "evaluate: {episodes: 2, every_epochs: 1, workers: 2, executor: ray}",
         )
     )
     cli("evaluate", "--params", "tiny_ray.yaml", "--data", "D1", "--variant", "D1",
