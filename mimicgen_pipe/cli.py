@@ -24,7 +24,7 @@ STAGES = {
     "generate": "generate demos for one reset variant (MimicGen)",
     "coverage": "support coverage of a generated dataset's initial scenes, with heat maps",
     "train": "train BC-RNN policies on the source demos or a generated dataset",
-    "evaluate": "roll out every checkpoint of a training run in one reset variant",
+    "evaluate": "roll out a training run's checkpoints in one reset variant",
     "export": "a generated store as robomimic HDF5, LeRobot and ManiSkill trajectories",
     "render": "MP4s and GIFs of the first kept and failed generated episodes, captioned",
     "report": "report.md and report.html: our metrics beside the paper's, with ablations",

@@ -796,11 +796,17 @@ def suite_policy_blocks(
     and last over training, beside the paper's Table P.1 for the task ours stands for. Rows:
     D0 always, other variants where a metric is present."""
     rows = []
+    protocols = set()  # (episodes, every_epochs, checkpoints) of the evaluations shown
     for spec in specs:
         for v in spec.variants:
             src, gen = (metrics.get(f"evaluate_{spec.name}_{d}_on_{v}") for d in ("source", v))
             if v != "D0" and src is None and gen is None:
                 continue
+            protocols |= {
+                (m.get("episodes"), m.get("every_epochs"), m.get("checkpoints"))
+                for m in (src, gen)
+                if m is not None
+            }
 
             def sr(m: Mapping[str, Any] | None) -> str:
                 if m is None:
@@ -829,12 +835,20 @@ def suite_policy_blocks(
             )
     columns = ("task (evaluated on)", "paper task", "source-only SR max / last",
                "generated SR max / last", "gain (max)", "paper (low-dim, P.1)")  # fmt: skip
+    if len(protocols) == 1:
+        ((episodes, every, checkpoints),) = protocols
+        protocol = (
+            f"{episodes} episodes on each of {checkpoints} checkpoints per policy (every "
+            f"{every}th epoch and the last)"
+        )
+    else:
+        protocol = "episodes and checkpoints per policy as in each evaluate metric"
     return [
         Heading(2, "Task suite: policy success rate (%)"),
         Text(
             "BC-RNN (cpu profile) trained on each task's 10 source demos and on the demos "
-            "generated for a variant (`suite/dvc.yaml`), evaluated on that variant, 50 "
-            "episodes per checkpoint. The paper's source agents are evaluated on D0 only."
+            f"generated for a variant (`suite/dvc.yaml`), evaluated on that variant: {protocol}."
+            " The paper's source agents are evaluated on D0 only."
         ),
         Table(columns, tuple(rows)),
     ]

@@ -458,12 +458,18 @@ def test_suite_policy_table_sets_source_beside_generated_and_the_paper():
 
     paper = load_paper_results(PAPER)
     spec = envs.task_spec("maniskill", "place_sphere")  # stands for Pick Place
+    protocol = {"episodes": 50, "every_epochs": 50, "checkpoints": 4}
     metrics = {
         "evaluate_place_sphere_source_on_D0": {"success_rate_max": 6.0, "success_rate_last": 2.0},
         "evaluate_place_sphere_D0_on_D0": {"success_rate_max": 84.0, "success_rate_last": 80.0},
         "evaluate_place_sphere_source_on_D1": {"success_rate_max": 0.0, "success_rate_last": 0.0},
     }
-    table = suite_policy_blocks([spec], metrics, paper)[-1]
+    metrics = {k: {**m, **protocol} for k, m in metrics.items()}
+    blocks = suite_policy_blocks([spec], metrics, paper)
+    assert "50 episodes on each of 4 checkpoints per policy (every 50th epoch" in blocks[1].text
+    metrics["evaluate_place_sphere_source_on_D1"]["episodes"] = 20
+    assert "as in each evaluate metric" in suite_policy_blocks([spec], metrics, paper)[1].text
+    table = blocks[-1]
     d0, d1 = table.rows  # D2: no metric, no row
     assert d0 == (
         "place_sphere (D0)", "Pick Place", "6.0 / 2.0", "84.0 / 80.0", "+78.0",
