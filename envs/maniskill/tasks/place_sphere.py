@@ -139,7 +139,7 @@ TASK = ManiSkillTask(
             "D1": _variant(0.0),
             "D2": _variant(math.pi / 4),
         },
-        horizon=200,  # source demos take 105-137 steps
+        horizon=200,  # source demos take 121-141 steps
         paper_task="Pick Place",
     ),
     base_env_id="PlaceSphere-v1",
