@@ -12,18 +12,21 @@ damaged chunk is an error when read, never a silent array of zeros.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+import sys
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zarr
-from zarr.codecs import Crc32cCodec, ZstdCodec
+from zarr.codecs import BytesCodec, Crc32cCodec, ZstdCodec
+from zarr.codecs.bytes import Endian
+from zarr.storage import LocalStore
 
 from mimicgen_pipe import poses
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.outputs import atomic_directory
+from mimicgen_pipe.outputs import atomic_directory, recover
 
 SCHEMA_VERSION = 2  # 2: crc32c on every chunk, every chunk written, attrs.kind
 STORE_KINDS = ("source", "parsed", "generated", "failed")
@@ -125,26 +128,44 @@ def write_store(
 def _read_group(path: Path, group: zarr.Group, prefix: str) -> dict[str, np.ndarray]:
     """Every array under ``group``, keyed by its path in the store; a missing chunk or a
     chunk whose checksum does not match is an InputError naming the array."""
-    out: dict[str, np.ndarray] = {}
+    return {key: _read_array(path, key, member) for key, member in _members(group, prefix).items()}
+
+
+def _members(group: zarr.Group, prefix: str) -> dict[str, zarr.Array]:
+    """Every array under ``group``, unread, keyed by its path in the store."""
+    out: dict[str, zarr.Array] = {}
     for name, member in group.members():
         key = f"{prefix}{name}"
         if isinstance(member, zarr.Group):
-            out.update(_read_group(path, member, f"{key}/"))
-            continue
-        if member.nchunks_initialized < member.nchunks:
-            raise InputError(
-                f"{path}: {key}: {member.nchunks - member.nchunks_initialized} of "
-                f"{member.nchunks} chunk(s) missing (store incomplete or damaged; re-run the "
-                "stage that wrote it)"
-            )
-        try:
-            out[key] = member[...]
-        except Exception as exc:  # zarr raises ValueError/RuntimeError by codec
-            raise InputError(
-                f"{path}: {key}: a chunk cannot be decoded ({type(exc).__name__}: "
-                f"{str(exc)[:80]}); the store is damaged, re-run the stage that wrote it"
-            ) from exc
+            out.update(_members(member, f"{key}/"))
+        else:
+            out[key] = member
     return out
+
+
+def _check_chunks(path: Path, key: str, member: zarr.Array) -> None:
+    if member.nchunks_initialized < member.nchunks:
+        raise InputError(
+            f"{path}: {key}: {member.nchunks - member.nchunks_initialized} of "
+            f"{member.nchunks} chunk(s) missing (store incomplete or damaged; re-run the "
+            "stage that wrote it)"
+        )
+
+
+def _damaged(path: Path, key: str, exc: Exception) -> InputError:
+    return InputError(
+        f"{path}: {key}: a chunk cannot be decoded ({type(exc).__name__}: "
+        f"{str(exc)[:80]}); the store is damaged, re-run the stage that wrote it"
+    )
+
+
+def _read_array(path: Path, key: str, member: zarr.Array) -> np.ndarray:
+    """One whole array, every chunk present and matching its checksum."""
+    _check_chunks(path, key, member)
+    try:
+        return member[...]
+    except Exception as exc:  # zarr raises ValueError/RuntimeError by codec
+        raise _damaged(path, key, exc) from exc
 
 
 def _strip(prefix: str, arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -196,6 +217,15 @@ def _check_bookkeeping(
                 )
 
 
+def _not_finite(path: Path, key: str, ends: np.ndarray, row: int) -> InputError:
+    """data/<key> has a NaN or infinite value at step ``row`` of the concatenated steps."""
+    ep = int(np.searchsorted(ends, row, side="right"))
+    start = int(ends[ep - 1]) if ep else 0
+    return InputError(
+        f"{path}: data/{key}: NaN or infinite value at episode {ep}, step {row - start} (row {row})"
+    )
+
+
 def _check_finite(
     path: Path, data: Mapping[str, np.ndarray], ends: np.ndarray, episodes: Mapping[str, Any]
 ) -> None:
@@ -204,17 +234,40 @@ def _check_finite(
         if value.dtype.kind != "f" or np.isfinite(value).all():
             continue
         step = int(np.argmax(~np.isfinite(value).reshape(len(value), -1).all(axis=1)))
-        ep = int(np.searchsorted(ends, step, side="right"))
-        start = int(ends[ep - 1]) if ep else 0
-        raise InputError(
-            f"{path}: data/{key}: NaN or infinite value at episode {ep}, step {step - start} "
-            f"(row {step})"
-        )
+        raise _not_finite(path, key, ends, step)
     for key, value in episodes.items():
         if value.dtype.kind != "f" or np.isfinite(value).all():
             continue
         ep = int(np.argmax(~np.isfinite(value).reshape(len(value), -1).all(axis=1)))
         raise InputError(f"{path}: meta/episodes/{key}: NaN or infinite value at episode {ep}")
+
+
+def _open_root(
+    path: Path, task: str | None, kind: str | Sequence[str] | None
+) -> tuple[tuple[zarr.Group, zarr.Group], dict[str, Any]]:
+    """The data and meta groups of the store at ``path`` and its attributes, after checking
+    its schema version, its kind (one of ``kind`` unless None) and its task (unless None)."""
+    if not path.exists():
+        raise InputError(f"{path}: store not found")
+    try:
+        root = zarr.open_group(str(path), mode="r")
+        attrs = dict(root.attrs)
+        groups = (root["data"], root["meta"])
+    except (KeyError, FileNotFoundError, ValueError) as exc:
+        raise InputError(f"{path}: not an episode store ({exc})") from exc
+    if attrs.get("schema_version") != SCHEMA_VERSION:
+        raise InputError(
+            f"{path}: schema_version {attrs.get('schema_version')!r}, expected {SCHEMA_VERSION}"
+            " (written by another version of mimicgen-pipe; re-run the stage that wrote it)"
+        )
+    kinds = (kind,) if isinstance(kind, str) else kind
+    if kinds is not None and attrs.get("kind") not in kinds:
+        raise InputError(
+            f"{path}: a {attrs.get('kind')!r} store, expected {' or '.join(map(repr, kinds))}"
+        )
+    if task is not None and attrs.get("task") != task:
+        raise InputError(f"{path}: attrs.task is {attrs.get('task')!r}, expected {task!r}")
+    return groups, attrs
 
 
 def read_store(
@@ -231,26 +284,8 @@ def read_store(
     finite float values. Raises InputError naming the path, the array and, for bad values,
     the episode and step."""
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: store not found")
-    try:
-        root = zarr.open_group(str(path), mode="r")
-        attrs = dict(root.attrs)
-        groups = [root["data"], root["meta"]]
-    except (KeyError, FileNotFoundError, ValueError) as exc:
-        raise InputError(f"{path}: not an episode store ({exc})") from exc
-    if attrs.get("schema_version") != SCHEMA_VERSION:
-        raise InputError(
-            f"{path}: schema_version {attrs.get('schema_version')!r}, expected {SCHEMA_VERSION}"
-            " (written by another version of mimicgen-pipe; re-run the stage that wrote it)"
-        )
-    kinds = (kind,) if isinstance(kind, str) else kind
-    if kinds is not None and attrs.get("kind") not in kinds:
-        raise InputError(
-            f"{path}: a {attrs.get('kind')!r} store, expected {' or '.join(map(repr, kinds))}"
-        )
-    if task is not None and attrs.get("task") != task:
-        raise InputError(f"{path}: attrs.task is {attrs.get('task')!r}, expected {task!r}")
+    recover(path)  # a commit of its output set that a killed run left half done
+    groups, attrs = _open_root(path, task, kind)
     arrays = _read_group(path, groups[0], "data/") | _read_group(path, groups[1], "meta/")
     if "meta/episode_ends" not in arrays:
         raise InputError(f"{path}: meta/episode_ends missing (not an episode store)")
@@ -268,3 +303,215 @@ def read_store(
     _check_bookkeeping(path, data, ends, episodes)
     _check_finite(path, data, ends, episodes)
     return EpisodeStore(path, data, ends, episodes, attrs)
+
+
+# ---- partial reads: the arrays and episodes a stage uses, nothing else ----
+
+# A partial read decodes at most this many bytes of an array at a time: its working memory
+# beyond the rows it returns.
+_BLOCK_BYTES = 1 << 20
+
+
+@dataclass(frozen=True)
+class StoreView:
+    """An episode store opened for partial reads: header, episode bookkeeping and array
+    shapes are checked as :func:`read_store` checks them, but an array is read only when
+    asked for, and then only the rows of the episodes asked for. ``arrays``: every array,
+    unread, by its path in the store (``data/<key>``, ``meta/episodes/<key>``)."""
+
+    path: Path
+    attrs: Mapping[str, Any]
+    episode_ends: np.ndarray
+    arrays: Mapping[str, zarr.Array]
+
+    @property
+    def n_episodes(self) -> int:
+        return len(self.episode_ends)
+
+    @property
+    def episode_starts(self) -> np.ndarray:
+        return np.concatenate([[0], self.episode_ends[:-1]]).astype(np.int64)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """(N_episodes,) int64 steps per episode."""
+        return self.episode_ends - self.episode_starts
+
+    @property
+    def data_keys(self) -> list[str]:
+        return sorted(k[5:] for k in self.arrays if k.startswith("data/"))
+
+    @property
+    def episode_keys(self) -> list[str]:
+        return sorted(k[14:] for k in self.arrays if k.startswith("meta/episodes/"))
+
+    def shape(self, key: str) -> tuple[int, ...]:
+        """The shape of ``data/<key>``, (N_steps, ...), without reading it."""
+        return tuple(self.arrays[f"data/{key}"].shape)
+
+    def episode_field(self, key: str) -> np.ndarray:
+        """``meta/episodes/<key>`` (N_episodes, ...), checksum-verified and finite."""
+        value = _read_array(self.path, f"meta/episodes/{key}", self.arrays[f"meta/episodes/{key}"])
+        _check_finite(self.path, {}, self.episode_ends, {key: value})
+        return value
+
+    def read_rows(
+        self, key: str, episodes: Sequence[int], out: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The steps of ``episodes`` (ascending store indices) in ``data/<key>``,
+        concatenated in episode order: written into ``out`` when given (a (rows, ...) array
+        whose rows take the stored rows, cast to its dtype), else a new array of the stored
+        dtype. The array's chunk must match its checksum; a NaN or infinite value among the
+        rows read, or one the cast to ``out``'s dtype makes, is an InputError naming the
+        episode and step."""
+        member = self.arrays[f"data/{key}"]
+        starts, ends = self.episode_starts, self.episode_ends
+        chosen = np.asarray(episodes, np.int64)
+        if np.any(np.diff(chosen) <= 0):
+            raise ValueError("episodes: expected ascending store indices")
+        n = int((ends[chosen] - starts[chosen]).sum())
+        if out is None:
+            out = np.empty((n, *member.shape[1:]), member.dtype)
+        if len(out) != n:
+            raise ValueError(f"out: {len(out)} rows, the episodes have {n}")
+        ranges: list[list[int]] = []  # consecutive episodes read as one run of rows
+        for e in chosen:
+            if ranges and ranges[-1][1] == starts[e]:
+                ranges[-1][1] = int(ends[e])
+            else:
+                ranges.append([int(starts[e]), int(ends[e])])
+        done = 0
+        with np.errstate(over="ignore"):  # a cast's overflow is reported below, by row
+            for row, block in _iter_rows(self.path, f"data/{key}", member, ranges):
+                m = len(block)
+                if block.dtype.kind == "f" and not np.isfinite(block).all():
+                    bad = int(np.argmax(~np.isfinite(block).reshape(m, -1).all(axis=1)))
+                    raise _not_finite(self.path, key, ends, row + bad)
+                dest = out[done : done + m]
+                dest[...] = block.reshape((m, *out.shape[1:]))
+                if dest.dtype.kind == "f" and not np.isfinite(dest).all():
+                    bad = int(np.argmax(~np.isfinite(dest).reshape(m, -1).all(axis=1)))
+                    raise InputError(
+                        f"{self.path}: data/{key}: a value at row {row + bad} does not fit "
+                        f"{dest.dtype} (it becomes infinite)"
+                    )
+                done += m
+        return out
+
+
+def open_store(
+    path: str | os.PathLike,
+    required: Sequence[str] = (),
+    task: str | None = None,
+    kind: str | Sequence[str] | None = None,
+    required_episodes: Sequence[str] = (),
+) -> StoreView:
+    """Open a store for partial reads, checking before any work what :func:`read_store`
+    checks without reading the step arrays: schema version, kind, task, required keys,
+    episode bookkeeping and pose shapes (subtask ends included). Checksums and finite values
+    are checked for what is then read. Memory: the episode ends, O(N_episodes)."""
+    path = Path(path)
+    recover(path)  # a commit of its output set that a killed run left half done
+    groups, attrs = _open_root(path, task, kind)
+    arrays = _members(groups[0], "data/") | _members(groups[1], "meta/")
+    if "meta/episode_ends" not in arrays:
+        raise InputError(f"{path}: meta/episode_ends missing (not an episode store)")
+    ends = np.asarray(
+        _read_array(path, "meta/episode_ends", arrays["meta/episode_ends"]), dtype=np.int64
+    )
+    data = _strip("data/", {k: v for k, v in arrays.items() if k.startswith("data/")})
+    episodes: dict[str, Any] = _strip(
+        "meta/episodes/", {k: v for k, v in arrays.items() if k.startswith("meta/episodes/")}
+    )
+    missing = [k for k in required if k not in data]
+    if missing:
+        raise InputError(f"{path}: missing data keys {missing}")
+    missing = [k for k in required_episodes if k not in episodes]
+    if missing:
+        raise InputError(f"{path}: missing meta/episodes keys {missing}")
+    term = "meta/episodes/subtask_term_index"
+    if term in arrays:  # its values are checked, so it is read (one row per episode)
+        episodes["subtask_term_index"] = _read_array(path, term, arrays[term])
+    _check_bookkeeping(path, data, ends, episodes)  # shapes only, besides subtask ends
+    return StoreView(path, attrs, ends, arrays)
+
+
+def _chunk_file(member: zarr.Array) -> Path | None:
+    """The file of an array written as write_store writes it (one chunk of little-endian
+    numbers, zstd, crc32c, in a local store), else None."""
+    md = member.metadata
+    codecs = getattr(md, "codecs", ())
+    if (
+        sys.byteorder != "little"
+        or member.dtype.kind not in "biuf"
+        or 0 in member.shape
+        or tuple(getattr(md.chunk_grid, "chunk_shape", ())) != tuple(member.shape)
+        or [type(c) for c in codecs] != [BytesCodec, ZstdCodec, Crc32cCodec]
+        or codecs[0].endian not in (None, Endian.little)
+        or not isinstance(member.store, LocalStore)
+    ):
+        return None
+    return Path(member.store.root) / member.path / md.encode_chunk_key((0,) * member.ndim)
+
+
+def _iter_rows(
+    path: Path, key: str, member: zarr.Array, ranges: Sequence[Sequence[int]]
+) -> Iterator[tuple[int, np.ndarray]]:
+    """(first row, rows) blocks of the row ranges [start, end) of ``member``, in order.
+
+    An array in write_store's layout is decoded as a stream, and only up to the last row
+    wanted: memory stays at one block however many rows the array has. Its checksum is
+    verified first, over the whole chunk file, also when only a part of it is decoded."""
+    _check_chunks(path, key, member)
+    chunk = _chunk_file(member)
+    if chunk is None:  # another layout: decode the whole array
+        whole = _read_array(path, key, member)
+        for start, end in ranges:
+            yield start, whole[start:end]
+        return
+    import crc32c
+    import pyarrow as pa
+
+    try:
+        size = chunk.stat().st_size
+        if size < 4:
+            raise ValueError(f"{size} bytes, shorter than its checksum")
+        with chunk.open("rb") as f:
+            crc, left = 0, size - 4
+            while left:
+                part = f.read(min(left, _BLOCK_BYTES))
+                if not part:
+                    raise ValueError("file shorter than its size")
+                crc, left = crc32c.crc32c(part, value=crc), left - len(part)
+            if np.uint32(crc).tobytes() != f.read(4):
+                raise ValueError("stored and computed checksum do not match")
+    except (OSError, ValueError) as exc:
+        raise _damaged(path, key, exc) from exc
+    row_shape = tuple(member.shape[1:])
+    dtype = member.dtype.newbyteorder("<")
+    row_bytes = dtype.itemsize * int(np.prod(row_shape))
+    per_block = max(1, _BLOCK_BYTES // row_bytes)
+    block = np.empty((per_block, *row_shape), dtype)  # decoded rows land here, block by block
+    view = memoryview(block.reshape(-1).view(np.uint8))
+    try:
+        with pa.OSFile(str(chunk)) as raw:
+            stream = pa.CompressedInputStream(raw.get_stream(0, size - 4), "zstd")
+            pos = 0  # rows decoded so far
+            for start, end in ranges:
+                while pos < end:
+                    n = min(end - pos, per_block) if pos >= start else min(start - pos, per_block)
+                    got = 0
+                    while got < n * row_bytes:
+                        step = stream.readinto(view[got : n * row_bytes])
+                        if not step:
+                            raise ValueError(f"the chunk ends at row {pos + got // row_bytes}")
+                        got += step
+                    if pos >= start:
+                        yield pos, block[:n]
+                    pos += n
+            stream.close()
+    except (pa.ArrowException, ValueError) as exc:
+        raise _damaged(path, key, exc) from exc
+    finally:
+        # the stream's decoding buffers come from Arrow's pool, which keeps freed memory
+        pa.default_memory_pool().release_unused()

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import os
 import pickle
+import re
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ from tqdm import tqdm
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
-from mimicgen_pipe.store import EpisodeStore
+from mimicgen_pipe.store import StoreView, open_store
 
 CHECKPOINT_VERSION = 1
 
@@ -61,49 +62,100 @@ class SequenceData:
         return len(self.episode_ends)
 
 
-def dataset_from_store(
-    store: EpisodeStore, obs_keys: Sequence[str], num_demos: int | None = None
-) -> tuple[SequenceData, tuple[int, ...]]:
-    """The successful episodes of ``store`` (the first ``num_demos`` of them when given) as
-    (observations from ``obs/<key>`` in ``obs_keys`` order, actions). Returns the data and
-    each key's width. Raises InputError naming the store and what is missing."""
-    available = sorted(k[4:] for k in store.data if k.startswith("obs/"))
-    missing = [k for k in obs_keys if f"obs/{k}" not in store.data]
+@dataclass(frozen=True)
+class TrainingData:
+    """What a training reads from a store: its training and validation episodes, each key's
+    observation width, the action width and the store's attributes."""
+
+    train: SequenceData
+    val: SequenceData
+    obs_dims: tuple[int, ...]
+    action_dim: int
+    attrs: Mapping[str, Any]
+
+
+def load_training_data(
+    path: str | os.PathLike,
+    obs_keys: Sequence[str],
+    num_demos: int | None,
+    val_fraction: float,
+    split_seed: int,
+    task: str | None = None,
+    kind: str | Sequence[str] | None = None,
+) -> TrainingData:
+    """The successful episodes of the store at ``path`` (the first ``num_demos`` of them
+    when given), split by episode into training and validation sets
+    (:func:`split_episodes` with ``val_fraction`` and a generator seeded ``split_seed``):
+    observations from ``data/obs/<key>`` in ``obs_keys`` order, and actions, as float32.
+
+    Only those arrays and those episodes' rows are read (mimicgen_pipe.store.open_store),
+    so memory is what the training holds, whatever else the store has. Raises InputError
+    naming the store and what is missing or wrong, before any work."""
+    view = open_store(path, required=["actions"], task=task, kind=kind)
+    missing = [k for k in obs_keys if f"obs/{k}" not in view.data_keys]
     if missing:
+        available = [k[4:] for k in view.data_keys if k.startswith("obs/")]
         raise InputError(
-            f"{store.path}: observation keys {missing} not in the store "
+            f"{view.path}: observation keys {missing} not in the store "
             f"(data/obs/ has: {', '.join(available) or 'nothing'})"
         )
-    if "actions" not in store.data:
-        raise InputError(f"{store.path}: data/actions missing")
-    success = np.asarray(store.episodes.get("success", np.ones(store.n_episodes, bool)), bool)
+    if "success" in view.episode_keys:
+        success = np.asarray(view.episode_field("success"), bool)
+    else:
+        success = np.ones(view.n_episodes, bool)
     keep = np.flatnonzero(success)
     if len(keep) == 0:
-        raise InputError(f"{store.path}: no successful episodes ({store.n_episodes} in the store)")
+        raise InputError(f"{view.path}: no successful episodes ({view.n_episodes} in the store)")
     if num_demos is not None:
         if len(keep) < num_demos:
             raise InputError(
-                f"{store.path}: {len(keep)} successful episodes, {num_demos} wanted "
+                f"{view.path}: {len(keep)} successful episodes, {num_demos} wanted "
                 "(generate more or lower train.num_demos)"
             )
         keep = keep[:num_demos]
-    starts, ends = store.episode_starts, store.episode_ends
-    index = np.concatenate([np.arange(starts[i], ends[i]) for i in keep])
-    dims = tuple(int(np.prod(store.data[f"obs/{k}"].shape[1:])) for k in obs_keys)
-    obs = np.concatenate(
-        [store.data[f"obs/{k}"].reshape(len(store.data["actions"]), -1)[index] for k in obs_keys],
-        axis=1,
-    ).astype(np.float32)
-    if not np.isfinite(obs).all():
-        raise InputError(f"{store.path}: non-finite observations in {list(obs_keys)}")
-    lengths = ends[keep] - starts[keep]
-    data = SequenceData(
-        obs, store.data["actions"][index].astype(np.float32), np.cumsum(lengths).astype(np.int64)
+    if val_fraction > 0 and len(keep) < 2:
+        why = f"train.num_demos is {num_demos}" if num_demos else "1 successful in the store"
+        raise InputError(
+            f"{view.path}: 1 episode to train on ({why}), but train.val_fraction "
+            f"{val_fraction} holds out at least one for validation: at least 2 are needed "
+            "(or set train.val_fraction: 0 to train without validation)"
+        )
+    train_eps, val_eps = split_episodes(len(keep), val_fraction, np.random.default_rng(split_seed))
+    dims = tuple(int(np.prod(view.shape(f"obs/{k}")[1:])) for k in obs_keys)
+    action_dim = int(np.prod(view.shape("actions")[1:]))
+    return TrainingData(
+        _read_sequences(view, obs_keys, dims, action_dim, keep[train_eps]),
+        _read_sequences(view, obs_keys, dims, action_dim, keep[val_eps]),
+        dims,
+        action_dim,
+        view.attrs,
     )
-    return data, dims
+
+
+def _read_sequences(
+    view: StoreView,
+    obs_keys: Sequence[str],
+    dims: Sequence[int],
+    action_dim: int,
+    episodes: np.ndarray,
+) -> SequenceData:
+    """``episodes`` (ascending store indices) as float32 SequenceData, each key read straight
+    into its columns: no copy of the data beyond the result."""
+    ends = np.cumsum(view.lengths[episodes]).astype(np.int64)
+    n = int(ends[-1]) if len(ends) else 0
+    obs = np.empty((n, sum(dims)), np.float32)
+    column = 0
+    for key, dim in zip(obs_keys, dims, strict=True):
+        view.read_rows(f"obs/{key}", episodes, obs[:, column : column + dim])
+        column += dim
+    actions = view.read_rows("actions", episodes, np.empty((n, action_dim), np.float32))
+    return SequenceData(obs, actions, ends)
 
 
 def subset(data: SequenceData, episodes: np.ndarray) -> SequenceData:
+    """The episodes ``episodes`` of ``data``, in that order (none: empty arrays)."""
+    if len(episodes) == 0:
+        return SequenceData(data.obs[:0], data.actions[:0], np.zeros(0, np.int64))
     starts, ends = data.episode_starts, data.episode_ends
     index = np.concatenate([np.arange(starts[i], ends[i]) for i in episodes])
     return SequenceData(
@@ -159,11 +211,25 @@ def save_checkpoint(path: Path, model: BCRNN, meta: dict[str, Any]) -> None:
 
 
 def load_checkpoint(path: str | os.PathLike) -> tuple[BCRNN, dict[str, Any]]:
+    """A policy and its meta from a checkpoint written by :func:`save_checkpoint`.
+
+    The file is unpickled with torch's weights-only loader, which builds tensors and plain
+    containers and refuses any other object, so a crafted file cannot run code. Raises
+    InputError naming the file for anything else: a foreign object, a wrong layout or
+    version, and NaN or infinite weights (a diverged training: its rollouts would fail)."""
     path = Path(path)
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
-        raise InputError(f"{path}: not a policy checkpoint ({exc})") from exc
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        # torch's message is a page of advice; the part after this marker says what failed
+        detail = " ".join(str(exc).split()).partition("WeightsUnpickler error:")[2]
+        detail = re.split(r"\. | Check the documentation", detail)[0].strip()[:160]
+        raise InputError(
+            f"{path}: not a policy checkpoint, or one holding objects other than tensors and "
+            f"plain values, which are never unpickled ({detail or _one_line(exc)})"
+        ) from exc
+    except (OSError, RuntimeError, EOFError, ValueError) as exc:
+        raise InputError(f"{path}: not a policy checkpoint ({_one_line(exc)})") from exc
     try:
         version = ckpt.get("version") if isinstance(ckpt, dict) else None
         if version != CHECKPOINT_VERSION:
@@ -171,10 +237,25 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[BCRNN, dict[str, Any]]:
                 f"{path}: checkpoint version {version!r}, expected {CHECKPOINT_VERSION}"
             )
         model = BCRNN(PolicyConfig.from_dict(ckpt["config"]))
-        model.load_state_dict(ckpt["state_dict"])
-    except (RuntimeError, KeyError, TypeError, AttributeError) as exc:
-        raise InputError(f"{path}: not a policy checkpoint ({exc})") from exc
-    return model, ckpt["meta"]
+        state = ckpt["state_dict"]
+        model.load_state_dict(state)
+        meta = ckpt["meta"]
+    except (RuntimeError, KeyError, TypeError, AttributeError, ValueError) as exc:
+        raise InputError(f"{path}: not a policy checkpoint ({_one_line(exc)})") from exc
+    if not isinstance(meta, dict):
+        raise InputError(f"{path}: meta is a {type(meta).__name__}, expected a dict")
+    for name, tensor in state.items():
+        if tensor.is_floating_point() and not torch.isfinite(tensor).all():
+            raise InputError(
+                f"{path}: state_dict[{name!r}] has NaN or infinite values (the training "
+                "diverged?); a policy with them cannot act"
+            )
+    return model, meta
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text[:200]}"
 
 
 def train_policy(

@@ -15,12 +15,12 @@ from mimicgen_pipe.observations import low_dim_observation, observation_dims, ob
 from mimicgen_pipe.params import load_params
 from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy
 from mimicgen_pipe.runner import attempt_seed
-from mimicgen_pipe.store import read_store, write_store
+from mimicgen_pipe.store import write_store
 from mimicgen_pipe.training import (
     SequenceData,
     TrainConfig,
-    dataset_from_store,
     load_checkpoint,
+    load_training_data,
     save_checkpoint,
     split_episodes,
     subset,
@@ -126,23 +126,21 @@ def store_with_obs(tmp_path, success):
         {"actions": np.zeros((5, 7), np.float32), "obs/eef_pos": np.ones((5, 3), np.float32)}
         for _ in success
     ]
-    return read_store(
-        write_store(
-            tmp_path / "s.zarr", "generated", steps, {"success": np.array(success)}, {"task": "t"}
-        )
+    return write_store(
+        tmp_path / "s.zarr", "generated", steps, {"success": np.array(success)}, {"task": "t"}
     )
 
 
 def test_dataset_errors_name_the_store_and_the_problem(tmp_path):
     store = store_with_obs(tmp_path, [True, False, True])
-    data, dims = dataset_from_store(store, ["eef_pos"])
-    assert data.n_episodes == 2 and dims == (3,)
+    data = load_training_data(store, ["eef_pos"], None, 0.0, 0)
+    assert (data.train.n_episodes, data.val.n_episodes, data.obs_dims) == (2, 0, (3,))
     with pytest.raises(InputError, match=r"s.zarr: observation keys \['cube_pos'\] not in"):
-        dataset_from_store(store, ["eef_pos", "cube_pos"])
+        load_training_data(store, ["eef_pos", "cube_pos"], None, 0.1, 0)
     with pytest.raises(InputError, match="2 successful episodes, 5 wanted"):
-        dataset_from_store(store, ["eef_pos"], num_demos=5)
+        load_training_data(store, ["eef_pos"], 5, 0.1, 0)
     with pytest.raises(InputError, match="s.zarr: no successful episodes"):
-        dataset_from_store(store_with_obs(tmp_path, [False, False]), ["eef_pos"])
+        load_training_data(store_with_obs(tmp_path, [False, False]), ["eef_pos"], None, 0.1, 0)
 
 
 def test_evaluation_seeds_never_meet_generation_seeds():
