@@ -23,13 +23,15 @@ import envs
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.generation import GenerationConfig
 from mimicgen_pipe.resume import WorkDir
-from mimicgen_pipe.runner import AttemptJob, attempt_seed, run_attempts
+from mimicgen_pipe.runner import AttemptBlockCodec, AttemptJob, attempt_seed, run_attempts
 from mimicgen_pipe.store import read_store
 from stages.generate import source_demos
 
 
 def timed(job: AttemptJob, seeds: list[int], executor: Executor, tmp: Path) -> tuple[float, list]:
-    work = WorkDir.open(tmp / f"{executor.kind}{executor.workers}.zarr", "benchmark")
+    work = WorkDir.open(
+        tmp / f"{executor.kind}{executor.workers}.zarr", "benchmark", AttemptBlockCodec(seeds)
+    )
     t0 = time.perf_counter()
     results = list(run_attempts(job, seeds, executor, work))
     seconds = time.perf_counter() - t0

@@ -11,8 +11,9 @@ worker or many, whichever worker runs a block.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from mimicgen_pipe.generation import (
 )
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import generation_metrics
-from mimicgen_pipe.resume import WorkDir
+from mimicgen_pipe.resume import BadBlock, WorkDir
 from mimicgen_pipe.store import EpisodeStore
 from mimicgen_pipe.taskspec import TaskSpec
 
@@ -38,6 +39,35 @@ def attempt_seed(seed: int, variant: str, attempt: int) -> int:
     [2**30, 2**31) is kept for policy evaluation (mimicgen_pipe.evaluation)."""
     ss = np.random.SeedSequence([seed, int.from_bytes(variant.encode(), "little"), attempt])
     return int(ss.generate_state(1, np.uint32)[0] & 0x3FFFFFFF)
+
+
+class AttemptSeeds(Sequence[int]):
+    """The reset seeds of attempts 0 .. ``count`` - 1 (:func:`attempt_seed`), each computed
+    when read: a run may allow millions of attempts and stop after a few hundred, and holds
+    none of them up front (``list(seeds)`` is the eager list)."""
+
+    def __init__(self, seed: int, variant: str, count: int) -> None:
+        self.seed, self.variant, self.count = seed, variant, count
+
+    def __len__(self) -> int:
+        return self.count
+
+    @overload
+    def __getitem__(self, i: int) -> int: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> list[int]: ...
+
+    def __getitem__(self, i: int | slice) -> int | list[int]:
+        if isinstance(i, slice):
+            return [attempt_seed(self.seed, self.variant, k) for k in range(self.count)[i]]
+        return attempt_seed(self.seed, self.variant, range(self.count)[i])
+
+    def __iter__(self) -> Iterator[int]:
+        return (attempt_seed(self.seed, self.variant, k) for k in range(self.count))
+
+    def __repr__(self) -> str:
+        return f"AttemptSeeds({self.seed}, {self.variant!r}, {self.count})"
 
 
 @dataclass(frozen=True)
@@ -51,6 +81,7 @@ class AttemptJob:
     variant: str
 
 
+BlockResult = list[tuple[int, Attempt, float]]  # a block's (seed, attempt, seconds)
 ATTEMPTS_PER_BLOCK = 16  # rebuilding a ManiSkill scene costs ~0.24 s, ~4% of a block
 _WORKER: tuple[AttemptJob, Env] | None = None
 
@@ -60,7 +91,7 @@ def _init_worker(job: AttemptJob) -> None:
     _WORKER = (job, job.make_env())
 
 
-def _run_block(seeds: list[int]) -> list[tuple[int, Attempt, float]]:
+def _run_block(seeds: list[int]) -> BlockResult:
     """Attempts of one block, on a freshly rebuilt scene; seconds include the rebuild share."""
     assert _WORKER is not None
     job, env = _WORKER
@@ -75,18 +106,114 @@ def _run_block(seeds: list[int]) -> list[tuple[int, Attempt, float]]:
     return out
 
 
-def attempt_blocks(seeds: list[int]) -> list[list[int]]:
+class AttemptBlocks(Sequence[list[int]]):
+    """The fixed blocks of ``seeds`` the attempts run in, ATTEMPTS_PER_BLOCK each (a resumed
+    run must cut them the same way); a block's seeds are read from ``seeds`` when the block
+    is."""
+
+    def __init__(self, seeds: Sequence[int]) -> None:
+        self.seeds = seeds
+
+    def __len__(self) -> int:
+        return -(-len(self.seeds) // ATTEMPTS_PER_BLOCK)
+
+    @overload
+    def __getitem__(self, i: int) -> list[int]: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> list[list[int]]: ...
+
+    def __getitem__(self, i: int | slice) -> list[int] | list[list[int]]:
+        if isinstance(i, slice):
+            return [self[k] for k in range(len(self))[i]]
+        start = range(len(self))[i] * ATTEMPTS_PER_BLOCK
+        return list(self.seeds[start : start + ATTEMPTS_PER_BLOCK])
+
+    def __iter__(self) -> Iterator[list[int]]:
+        return (self[k] for k in range(len(self)))
+
+
+def attempt_blocks(seeds: Sequence[int]) -> AttemptBlocks:
     """The fixed blocks the attempts run in (a resumed run must cut them the same way)."""
-    return [seeds[i : i + ATTEMPTS_PER_BLOCK] for i in range(0, len(seeds), ATTEMPTS_PER_BLOCK)]
+    return AttemptBlocks(seeds)
+
+
+class AttemptBlockCodec:
+    """A block's results (seed, attempt, seconds) as the plain arrays a work directory keeps
+    (mimicgen_pipe.resume), and back, exactly: dtypes, shapes, the order of each attempt's
+    step arrays, Python scalars. A block's arrays are accepted only for the block index
+    whose seeds they hold (``attempt_blocks(seeds)[index]``)."""
+
+    # per-attempt scalars, stored as one (n,) array each: name -> (dtype, Python type)
+    SCALARS = {
+        "seed": (np.int64, int),
+        "seconds": (np.float64, float),
+        "success": (np.bool_, bool),
+        "failed_subtask": (np.int64, int),
+        "ik_failed": (np.bool_, bool),
+    }
+    ARRAYS = ("source_demo", "initial_state", "initial_object_poses")  # per attempt, as is
+
+    def __init__(self, seeds: Sequence[int]) -> None:
+        self.blocks = attempt_blocks(seeds)
+
+    def encode(self, index: int, result: BlockResult) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        columns: dict[str, list] = {name: [] for name in self.SCALARS}
+        for k, (seed, attempt, seconds) in enumerate(result):
+            if attempt.seed != seed:
+                raise ValueError(f"attempt {k} of block {index}: seed {attempt.seed} != {seed}")
+            row = (seed, seconds, attempt.success, attempt.failed_subtask, attempt.ik_failed)
+            for name, value in zip(self.SCALARS, row, strict=True):
+                columns[name].append(value)
+            for name in self.ARRAYS:
+                out[f"{k}/{name}"] = np.asarray(getattr(attempt, name))
+            # step arrays by position: their names (obs/..., object_poses/...) stay data
+            out[f"{k}/step_keys"] = np.array(list(attempt.steps), dtype=np.str_)
+            for j, value in enumerate(attempt.steps.values()):
+                out[f"{k}/steps/{j}"] = np.asarray(value)
+        for name, (dtype, _) in self.SCALARS.items():
+            out[name] = np.array(columns[name], dtype=dtype)
+        return out
+
+    def decode(self, index: int, arrays: Mapping[str, np.ndarray]) -> BlockResult:
+        if not 0 <= index < len(self.blocks):
+            raise BadBlock(f"no block {index} in a run of {len(self.blocks)} blocks")
+        seeds = self.blocks[index]
+        n = len(seeds)
+        for name, (dtype, _) in self.SCALARS.items():
+            a = arrays[name]
+            if a.dtype != dtype or a.shape != (n,):
+                raise BadBlock(f"{name}: {a.dtype} {a.shape}, expected {np.dtype(dtype)} ({n},)")
+        if arrays["seed"].tolist() != seeds:
+            raise BadBlock(f"holds other seeds than block {index}'s")
+        out = []
+        for k in range(n):
+            scalars = {name: cast(arrays[name][k]) for name, (_, cast) in self.SCALARS.items()}
+            keys = arrays[f"{k}/step_keys"]
+            if keys.dtype.kind != "U" or keys.ndim != 1:
+                raise BadBlock(f"{k}/step_keys: {keys.dtype} {keys.shape}")
+            steps = {str(key): arrays[f"{k}/steps/{j}"] for j, key in enumerate(keys)}
+            attempt = Attempt(
+                seed=scalars["seed"],
+                steps=steps,
+                success=scalars["success"],
+                failed_subtask=scalars["failed_subtask"],
+                ik_failed=scalars["ik_failed"],
+                **{name: arrays[f"{k}/{name}"] for name in self.ARRAYS},
+            )
+            out.append((scalars["seed"], attempt, scalars["seconds"]))
+        return out
 
 
 def run_attempts(
-    job: AttemptJob, seeds: list[int], executor: Executor, work: WorkDir | None = None
+    job: AttemptJob, seeds: Sequence[int], executor: Executor, work: WorkDir | None = None
 ) -> Iterator[tuple[int, Attempt, float]]:
-    """Yield (seed, attempt, seconds) in the order of ``seeds``; with ``work``, finished
-    blocks are saved there and those an earlier run saved are reused. Stop consuming to stop
-    early: the workers are gone when the generator is closed (or an exception, such as an
-    interrupt, goes through it)."""
+    """Yield (seed, attempt, seconds) in the order of ``seeds``; with ``work`` (opened with
+    an :class:`AttemptBlockCodec` of the same seeds), finished blocks are saved there and
+    those an earlier run saved are reused. Stop consuming to stop early: the workers are
+    gone when the generator is closed (or an exception, such as an interrupt, goes through
+    it)."""
     results = map_blocks(_run_block, attempt_blocks(seeds), executor, _init_worker, (job,), work)
     try:
         for block in results:
@@ -111,7 +238,7 @@ class GenerationResult:
 
 def generate(
     job: AttemptJob,
-    seeds: list[int],
+    seeds: Sequence[int],
     executor: Executor,
     work: WorkDir | None = None,
     num_demos: int | None = None,
@@ -212,7 +339,7 @@ def episode_fields(attempts: list[Attempt], spec: TaskSpec) -> dict[str, np.ndar
 WORKSPACE_SCENES = 8  # scenes sampled to check that the arm can reach the workspace
 
 
-def check_workspace(job: AttemptJob, seeds: list[int], robot: str) -> None:
+def check_workspace(job: AttemptJob, seeds: Sequence[int], robot: str) -> None:
     """InputError when the arm can reach the source segments in none of the first
     WORKSPACE_SCENES scenes of ``seeds`` (generation.reachable_scenes), before any work."""
     env = job.make_env()

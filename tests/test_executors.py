@@ -5,17 +5,28 @@ resumes to the same store. Generation runs on PyBullet (seconds)."""
 
 from __future__ import annotations
 
+import hashlib
 import os
+import pickle
+import resource
+import secrets
+import shutil
 import signal
+import socket
+import struct
 import subprocess
+import sys
 import time
+import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
+import zarr
 
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.resume import WorkDir, code_digest, work_dir_of
-from tests.conftest import cli
+from tests.conftest import REPO, cli
 from tests.test_interrupts_and_outputs import alive, children, own_lines, start
 from tests.test_store_integrity import tree_digest
 
@@ -39,8 +50,29 @@ def _slow_first(x: int) -> tuple[int, int]:
     return x, os.getpid()
 
 
+class PairCodec:
+    """Block results that are ints or (int, int) pairs, as arrays."""
+
+    def encode(self, index: int, result: int | tuple[int, int]) -> dict[str, np.ndarray]:
+        return {"value": np.asarray(result, np.int64)}
+
+    def decode(self, index: int, arrays: dict[str, np.ndarray]) -> int | tuple[int, int]:
+        value = arrays["value"]
+        return int(value) if value.ndim == 0 else (int(value[0]), int(value[1]))
+
+
+def last_byte_of(f: Path, member: str) -> int:
+    """Offset in zip file ``f`` of the last data byte of ``member`` (stored uncompressed)."""
+    with zipfile.ZipFile(f) as z:
+        info = z.getinfo(member)
+    with f.open("rb") as fh:
+        fh.seek(info.header_offset + 26)
+        name_len, extra_len = struct.unpack("<HH", fh.read(4))
+    return info.header_offset + 30 + name_len + extra_len + info.file_size - 1
+
+
 def test_results_come_in_task_order_when_blocks_finish_out_of_order(tmp_path):
-    work = WorkDir.open(tmp_path / "out.zarr", "k")
+    work = WorkDir.open(tmp_path / "out.zarr", "k", PairCodec())
     got = list(map_blocks(_slow_first, range(6), Executor("local", 2), _noop, (), work))
     assert [x for x, _ in got] == list(range(6))
     assert len({pid for _, pid in got} - {os.getpid()}) == 2  # two worker processes ran them
@@ -48,27 +80,36 @@ def test_results_come_in_task_order_when_blocks_finish_out_of_order(tmp_path):
 
 
 def test_finished_blocks_are_reused_and_a_damaged_one_is_run_again(tmp_path):
-    work = WorkDir.open(tmp_path / "out.zarr", "run-a")
+    work = WorkDir.open(tmp_path / "out.zarr", "run-a", PairCodec())
     CALLS.clear()
-    assert list(map_blocks(_square, range(5), Executor(), _noop, (), work)) == [0, 1, 4, 9, 16]
-    assert CALLS == [0, 1, 2, 3, 4]
-    block3 = work.path / "block-000003.pkl"
-    block3.write_bytes(block3.read_bytes()[:-1] + b"\0")  # one byte flipped
-    (work.path / "block-000001.pkl").unlink()  # never finished
-    (work.path / "block-000004.pkl.tmp-123").write_bytes(b"half")  # killed while saving
+    assert list(map_blocks(_square, range(6), Executor(), _noop, (), work)) == [0, 1, 4, 9, 16, 25]
+    assert CALLS == [0, 1, 2, 3, 4, 5]
+    block3 = work.path / "block-000003.npz"
+    at = last_byte_of(block3, "result/value.npy")  # of the value 9, under the zip's CRC
+    data = block3.read_bytes()
+    block3.write_bytes(data[:at] + bytes([data[at] ^ 1]) + data[at + 1 :])
+    block5 = work.path / "block-000005.npz"
+    block5.write_bytes(block5.read_bytes()[:-1])  # cut short
+    (work.path / "block-000001.npz").unlink()  # never finished
+    (work.path / "block-000004.npz.tmp-123").write_bytes(b"half")  # killed while saving
     CALLS.clear()
-    again = WorkDir.open(tmp_path / "out.zarr", "run-a")
-    assert list(map_blocks(_square, range(5), Executor(), _noop, (), again)) == [0, 1, 4, 9, 16]
-    assert CALLS == [1, 3]
-    assert sorted(p.name for p in again.path.iterdir())[-1] == "key"  # temporary removed
+    again = WorkDir.open(tmp_path / "out.zarr", "run-a", PairCodec())
+    assert again.resumed == {0, 2, 4}
+    assert [line.split(": ")[0] for line in again.discarded] == [
+        str(again.path / "block-000003.npz"),
+        str(again.path / "block-000005.npz"),
+    ]  # the damaged blocks are reported; a temporary is what a kill leaves, and is not
+    assert list(map_blocks(_square, range(6), Executor(), _noop, (), again)) == [0, 1, 4, 9, 16, 25]
+    assert CALLS == [1, 3, 5]
+    assert "block-000004.npz.tmp-123" not in {p.name for p in again.path.iterdir()}
 
 
 def test_a_work_directory_of_another_run_is_discarded_not_mixed(tmp_path):
     out = tmp_path / "out.zarr"
-    first = WorkDir.open(out, "params-a")
-    first.save(0, "from run a")
-    assert WorkDir.open(out, "params-a").finished() == {0}
-    other = WorkDir.open(out, "params-b")
+    first = WorkDir.open(out, "params-a", PairCodec())
+    first.save(0, 7)
+    assert WorkDir.open(out, "params-a", PairCodec()).finished() == {0}
+    other = WorkDir.open(out, "params-b", PairCodec())
     assert other.path == first.path == work_dir_of(out)
     assert other.finished() == set()
     assert (other.path / "key").read_text() == "params-b"
@@ -153,19 +194,113 @@ def test_a_killed_run_resumes_from_its_finished_blocks(work):
     blocks = work_dir_of(work / "data/resumed/stack_D0.zarr")
     proc = start(work, *args)
     t0 = time.monotonic()
-    while not list(blocks.glob("block-*.pkl")):
+    while not list(blocks.glob("block-*.npz")):
         assert proc.poll() is None, proc.communicate()[1][-3000:]
         assert time.monotonic() - t0 < 300
         time.sleep(0.05)
     os.kill(proc.pid, signal.SIGKILL)
     proc.communicate(timeout=30)
     assert not (work / "data/resumed/stack_D0.zarr").exists()
-    saved = len(list(blocks.glob("block-*.pkl")))
+    saved = len(list(blocks.glob("block-*.npz")))
     assert 1 <= saved < 3
     res = cli(*args, cwd=work)
     assert f"generate: resuming: {saved} finished blocks of attempts in " in res.stdout
     same_stores(work, "resumed")
     assert not blocks.exists()
+
+
+NOTICES = ("; discarded, its block is run again", "; removed unread")
+
+
+class Plant:
+    """Unpickling this runs a shell command (what a planted block would do)."""
+
+    def __init__(self, command: str) -> None:
+        self.command = command
+
+    def __reduce__(self) -> tuple:
+        return (os.system, (self.command,))
+
+
+def kill_after_first_block(work: Path, args: list[str], blocks: Path) -> None:
+    proc = start(work, *args)
+    t0 = time.monotonic()
+    while not (blocks / "block-000000.npz").exists():
+        assert proc.poll() is None, proc.communicate()[1][-3000:]
+        assert time.monotonic() - t0 < 300
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.communicate(timeout=30)
+
+
+@pytest.mark.sim
+def test_planted_and_copied_blocks_are_discarded_never_unpickled(work, tmp_path):
+    """In the work directory of a killed run (its key file right): a block file of the
+    previous format (SHA-256 + pickle) and an .npz holding a pickled object array, both
+    crafted to run a command when unpickled, a pickle named like a block, and block 0
+    copied over block 1. The same command resumes: nothing runs, each file is reported and
+    discarded, and the stores equal the uninterrupted run's."""
+    (work / "planted.yaml").write_text(PARAMS + "generate: {workers: 1, seed: 3}\n")
+    args = ["generate", "--params", "planted.yaml", "--variant", "D0", "--parsed",
+            "data/parsed/stack.zarr", "--attempts", str(ATTEMPTS), "--out",
+            "data/planted/stack_D0.zarr", "--metrics", "metrics/planted.json"]  # fmt: skip
+    blocks = work_dir_of(work / "data/planted/stack_D0.zarr")
+    kill_after_first_block(work, args, blocks)
+    marker = tmp_path / "ran"
+    payload = pickle.dumps(Plant(f"touch {marker}"))
+    pickle.loads(payload)  # the plant is live: unpickling it runs the command
+    assert marker.exists()
+    marker.unlink()
+    (blocks / "block-000002.pkl").write_bytes(hashlib.sha256(payload).digest() + payload)
+    (blocks / "block-000003.npz").write_bytes(payload)
+    with zipfile.ZipFile(blocks / "block-000000.npz") as z:
+        arrays = {n[:-4]: np.load(z.open(n), allow_pickle=False) for n in z.namelist()}
+    arrays["index"] = np.int64(2)
+    arrays["result/seed"] = np.array([Plant(f"touch {marker}")], dtype=object)
+    np.savez(blocks / "block-000002.npz", **arrays)  # savez pickles the object array
+    shutil.copyfile(blocks / "block-000000.npz", blocks / "block-000001.npz")
+
+    res = cli(*args, cwd=work)
+    assert not marker.exists()
+    assert "generate: resuming: 1 finished blocks of attempts in " in res.stdout
+    discarded = [ln for ln in res.stdout.splitlines() if ln.endswith(NOTICES)]
+    assert sorted(Path(ln.split(": ")[1]).name for ln in discarded) == [
+        "block-000001.npz",
+        "block-000002.npz",
+        "block-000002.pkl",
+        "block-000003.npz",
+    ], res.stdout
+    assert any("block-000001.npz: holds block 0, not 1; discarded" in ln for ln in discarded)
+    assert any("block-000002.pkl: not a block file; removed unread" in ln for ln in discarded)
+    same_stores(work, "planted")
+    seeds = zarr.open(str(work / "data/planted/stack_D0.zarr"), mode="r")["meta/episodes/seed"][:]
+    assert len(set(seeds.tolist())) == len(seeds)
+
+
+@pytest.mark.sim
+def test_a_block_that_cannot_be_written_stops_the_run_in_one_line(work):
+    """A file size limit (RLIMIT_FSIZE: EFBIG, as a full disk gives ENOSPC) met saving the
+    first block: exit 2, one line naming the block file and the free space, no temporary
+    left."""
+    (work / "limited.yaml").write_text(PARAMS + "generate: {workers: 1, seed: 3}\n")
+    out = work / "data/limited/stack_D0.zarr"
+    res = subprocess.run(
+        [sys.executable, "-m", "mimicgen_pipe.cli", "generate", "--params", "limited.yaml",
+         "--variant", "D0", "--parsed", "data/parsed/stack.zarr", "--attempts", "2",
+         "--out", str(out), "--metrics", "metrics/limited.json"],
+        cwd=work, capture_output=True, text=True,
+        env=dict(os.environ, PYTHONPATH=str(REPO), PYTHONWARNINGS="ignore"),
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192)),
+    )  # fmt: skip
+    assert res.returncode == 2, res.stderr[-3000:]
+    lines = own_lines(res.stderr)
+    block = work_dir_of(out) / "block-000000.npz"
+    assert len(lines) == 1 and lines[0].startswith(
+        f"mimicgen-pipe generate: error: {block}: could not be written (File too large); "
+    ), lines
+    assert " MB free there; the blocks saved before are kept" in lines[0]
+    assert [p.name for p in work_dir_of(out).iterdir()] == ["key"]
+    assert not out.exists()
 
 
 @pytest.mark.sim
@@ -180,7 +315,7 @@ def test_changed_params_do_not_reuse_the_blocks_of_another_run(work):
                  "data/parsed/stack.zarr", "--attempts", str(ATTEMPTS), "--out", str(out),
                  "--metrics", "metrics/reseeded.json")  # fmt: skip
     t0 = time.monotonic()
-    while not list(blocks.glob("block-*.pkl")):
+    while not list(blocks.glob("block-*.npz")):
         assert proc.poll() is None and time.monotonic() - t0 < 300
         time.sleep(0.05)
     os.kill(proc.pid, signal.SIGKILL)
@@ -203,12 +338,19 @@ def ray_workers_of(raylet_pid: int) -> list[int]:
 
 @pytest.mark.sim
 @pytest.mark.slow
-def test_a_ray_cluster_losing_a_worker_still_writes_the_same_stores(work):
-    """Head and second node (one CPU each) on loopback; the driver connects through
-    ray.address. Once the second node runs a block, its worker process is SIGKILLed: Ray
-    runs the block again and the stores equal the local 1-worker run's."""
+def test_a_ray_cluster_losing_a_worker_still_writes_the_same_stores(work, monkeypatch):
+    """Head and second node (one CPU each) with token authentication on, as the driver
+    requires; the driver connects through ray.address with the cluster's token. Once the
+    second node runs a block, its worker process is SIGKILLed: Ray runs the block again and
+    the stores equal the local 1-worker run's."""
+    from ray._raylet import Config
     from ray.cluster_utils import Cluster
 
+    # the nodes (started from here), this process's own client and the driver: one token
+    monkeypatch.setenv("RAY_AUTH_MODE", "token")
+    monkeypatch.setenv("RAY_AUTH_TOKEN", secrets.token_hex(16))
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    Config.initialize("")  # Ray reads RAY_AUTH_MODE once per process: again now
     cluster = Cluster(
         initialize_head=True,
         head_node_args={"num_cpus": 1, "object_store_memory": 100 * 2**20,
@@ -240,6 +382,35 @@ def test_a_ray_cluster_losing_a_worker_still_writes_the_same_stores(work):
         same_stores(work, "cluster")
     finally:
         cluster.shutdown()
+
+
+@pytest.mark.sim
+def test_a_ray_cluster_without_token_authentication_is_refused_in_one_line(work):
+    """RAY_AUTH_MODE=disabled with ray.address: a real ``mimicgen-pipe generate`` stops with
+    one line naming the setting, exit 2, without connecting and writing no store."""
+    listener = socket.create_server(("127.0.0.1", 0))  # the "cluster": records connections
+    listener.setblocking(False)
+    address = f"127.0.0.1:{listener.getsockname()[1]}"
+    (work / "noauth.yaml").write_text(
+        PARAMS + f"generate: {{workers: 1, executor: ray}}\nray: {{address: '{address}'}}\n"
+    )
+    res = cli("generate", "--params", "noauth.yaml", "--variant", "D0",
+              "--parsed", "data/parsed/stack.zarr", "--attempts", "16",
+              "--out", "data/noauth/stack_D0.zarr", "--metrics", "metrics/noauth.json",
+              cwd=work, check=False, env={"RAY_AUTH_MODE": "disabled"})  # fmt: skip
+    assert res.returncode == 2, res.stderr[-3000:]
+    assert own_lines(res.stderr) == [
+        "mimicgen-pipe generate: error: RAY_AUTH_MODE='disabled' turns Ray's token "
+        f"authentication off, and the cluster of ray.address {address!r} is used only with it "
+        "on: unset RAY_AUTH_MODE or set it to 'token', with the cluster's token in "
+        "RAY_AUTH_TOKEN, a file named by RAY_AUTH_TOKEN_PATH, or ~/.ray/auth_token"
+    ]
+    with pytest.raises(BlockingIOError):  # nobody connected
+        listener.accept()
+    listener.close()
+    assert not (work / "data/noauth/stack_D0.zarr").exists()
+    assert not work_dir_of(work / "data/noauth/stack_D0.zarr").exists()  # no work started
+    assert not (work / "metrics/noauth.json").exists()
 
 
 def ray_processes() -> set[int]:

@@ -15,7 +15,7 @@ finished are read back instead of run again.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
@@ -31,12 +31,20 @@ EXECUTORS = ("local", "ray")
 class Executor:
     """kind: ``local`` (process pool here) or ``ray``. workers: local processes, or for Ray
     the CPUs of the local Ray instance it starts when no cluster address is given (on a
-    cluster every CPU it offers is used). address: a Ray cluster (``auto``, ``host:port`` or
-    ``ray://host:port``); None uses ``RAY_ADDRESS`` when set, else starts a local Ray."""
+    cluster every CPU it offers is used). address: a Ray cluster's GCS (``auto`` or
+    ``host:port``); None uses ``RAY_ADDRESS`` when set, else starts a local Ray (loopback
+    only). A cluster is used only with Ray's token authentication on: settings that turn it
+    off are refused here, when the executor is made, before any work."""
 
     kind: Literal["local", "ray"] = "local"
     workers: int = 1
     address: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind == "ray":
+            from mimicgen_pipe.executors import ray  # imports no Ray: reads the environment
+
+            ray.check_settings(self.address)
 
 
 def map_blocks(
@@ -54,7 +62,8 @@ def map_blocks(
     Close the iterator (or let an exception through it) to stop early: the workers are gone
     when that returns. Blocks that finished are in ``work`` by then."""
     done = work.resumed if work is not None else frozenset()
-    todo = [(i, t) for i, t in enumerate(tasks) if i not in done]
+    # lazily: a run may allow far more blocks than it runs (and each task is made on demand)
+    todo = ((i, tasks[i]) for i in range(len(tasks)) if i not in done)
     results = _unordered(executor, fn, todo, initializer, initargs)
     waiting: dict[int, R] = {}
     try:
@@ -76,7 +85,7 @@ def map_blocks(
 def _unordered(
     executor: Executor,
     fn: Callable[[T], R],
-    tasks: list[tuple[int, T]],
+    tasks: Iterable[tuple[int, T]],
     initializer: Callable[..., None],
     initargs: tuple[Any, ...],
 ) -> Iterator[tuple[int, R]]:

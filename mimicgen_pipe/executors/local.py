@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import itertools
 import multiprocessing as mp
 import os
 import signal
@@ -72,12 +73,13 @@ def imap_unordered(
     order, when ``workers`` <= 1 (after ``initializer(*initargs)``), else on that many
     spawned processes, each initialised once. Close the iterator (or let an exception
     through it) to stop early: the pool is gone when that returns."""
-    tasks = list(tasks)
-    if not tasks:
+    tasks = iter(tasks)  # read as the pool asks for them: ``tasks`` may be long and lazy
+    first = list(itertools.islice(tasks, max(1, workers)))  # no more processes than tasks
+    if not first:
         return
     if workers <= 1:
         initializer(*initargs)
-        for i, task in tasks:
+        for i, task in itertools.chain(first, tasks):
             yield i, fn(task)
         return
     # Workers inherit a signal mask that blocks SIGINT: it would otherwise reach a worker
@@ -88,12 +90,13 @@ def imap_unordered(
     pool = None
     try:
         pool = mp.get_context("spawn").Pool(
-            min(workers, len(tasks)),
+            len(first),
             initializer=_init,
             initargs=(os.getpid(), initializer, initargs),
         )
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-        yield from pool.imap_unordered(_indexed, [(fn, i, t) for i, t in tasks], chunksize=1)
+        items = ((fn, i, t) for i, t in itertools.chain(first, tasks))
+        yield from pool.imap_unordered(_indexed, items, chunksize=1)
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
         if pool is not None:
