@@ -15,11 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
-
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.pose_noise import level_error
+from mimicgen_pipe.yamlfile import load_yaml
 
 
 @dataclass(frozen=True)
@@ -163,8 +162,9 @@ class RenderParams:
 @dataclass(frozen=True)
 class RayParams:
     """address: the Ray cluster that stages with ``executor: ray`` run on (``auto``,
-    ``host:port`` or ``ray://host:port``); null: the ``RAY_ADDRESS`` environment variable
-    when set, else a Ray started on this machine with the stage's ``workers`` CPUs."""
+    or the GCS's ``host:port``; Ray's token authentication on, as README's *Scale-out* says);
+    null: the ``RAY_ADDRESS`` environment variable when set, else a Ray started on this
+    machine (loopback only) with the stage's ``workers`` CPUs."""
 
     address: str | None = None
 
@@ -242,6 +242,13 @@ _RANGES: dict[str, tuple[float, float]] = {
     "generate.workers": (1, 256),
     "coverage.bins": (1, 100),
     "source.seed": (0, 2**29),  # reset seeds from 2**30 on are evaluation's
+    # the other seeds only seed numpy / torch generators and SeedSequences (generation and
+    # evaluation derive reset seeds from theirs, always below 2**31); all of these take any
+    # int >= 0, and int32's range keeps a seed usable by every simulator and file format
+    "generate.seed": (0, 2**31 - 1),
+    "evaluate.seed": (0, 2**31 - 1),
+    "pose_noise.seed": (0, 2**31 - 1),
+    "train.*.seeds": (0, 2**31 - 1),  # each seed of the list
     "train.num_demos": (1, 10_000_000),
     "train.val_fraction": (0.0, 0.5),
     "train.*.hidden": (1, 8192),
@@ -267,6 +274,15 @@ _RANGES: dict[str, tuple[float, float]] = {
 }
 
 
+def range_error(key: str, value: float) -> str | None:
+    """Why ``value`` is outside the range of params key ``key`` (as the params file's
+    check says it), or None: for a command-line option that stands in for the key."""
+    for pattern, (lo, hi) in _RANGES.items():
+        if fnmatch.fnmatchcase(key, pattern) and not lo <= value <= hi:
+            return f"expected a value in [{lo}, {hi}] (the range of {key}), got {value!r}"
+    return None
+
+
 # Keys whose values need more than a type and a range: key -> why the value is wrong (None
 # when it is right).
 def _non_empty_unique(value: Any) -> str | None:
@@ -277,10 +293,20 @@ def _non_empty_unique(value: Any) -> str | None:
     return None
 
 
+def _non_empty_path(value: Any) -> str | None:
+    if value == "":
+        return "expected a file path or null, got ''"
+    return None
+
+
 _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "pose_noise.level": level_error,
+    "source.from_file": _non_empty_path,
     "generate.variants": _non_empty_unique,
     "train.obs_keys": _non_empty_unique,
+    # each training seed is its own run, written under its own seed<k>/ folder
+    "train.cpu.seeds": _non_empty_unique,
+    "train.paper.seeds": _non_empty_unique,
     "transfer.tasks": _non_empty_unique,
     "export.formats": _non_empty_unique,
     "transfer.variants": _non_empty_unique,
@@ -328,12 +354,14 @@ def _build(cls: type, raw: Any, where: str, path: Path) -> Any:
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
-        raise InputError(f"{path}: {where or 'top level'}: expected a mapping, got {raw!r}")
+        what = f"{where or 'top level'}: expected a mapping, got {_short(raw)}"
+        raise InputError(f"{path}: {what}")
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(raw) - names)
+    # keys may load as numbers or booleans (``1:``, ``yes:``): sorted as text
+    unknown = sorted(set(raw) - names, key=str)
     if unknown:
-        key = f"{where}.{unknown[0]}" if where else unknown[0]
+        key = f"{where}.{unknown[0]}" if where else str(unknown[0])
         raise InputError(f"{path}: {key}: unknown key (known: {', '.join(sorted(names))})")
     kwargs = {}
     for name in names & set(raw):
@@ -346,23 +374,31 @@ def _build(cls: type, raw: Any, where: str, path: Path) -> Any:
         if why:
             raise InputError(f"{path}: {key}: {why}")
         if not _check(value, tp):
-            raise InputError(f"{path}: {key}: expected {_describe(tp)}, got {value!r}")
+            raise InputError(f"{path}: {key}: expected {_describe(tp)}, got {_short(value)}")
         for pattern, (lo, hi) in _RANGES.items():
-            if fnmatch.fnmatchcase(key, pattern) and not lo <= value <= hi:
-                raise InputError(f"{path}: {key}: expected a value in [{lo}, {hi}], got {value!r}")
+            if not fnmatch.fnmatchcase(key, pattern):
+                continue
+            for v in value if isinstance(value, list) else [value]:
+                if not lo <= v <= hi:
+                    each = "each entry " if isinstance(value, list) else ""
+                    raise InputError(
+                        f"{path}: {key}: expected {each}a value in [{lo}, {hi}], got {v!r}"
+                    )
         kwargs[name] = float(value) if tp is float else value
     return cls(**kwargs)
 
 
+def _short(value: Any, limit: int = 80) -> str:
+    """repr of a value from a user's file, cut to ``limit`` characters for a one-line error."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def read_yaml(path: Path, what: str) -> Any:
     """The YAML document at ``path``; InputError naming the file when it is missing
-    (``what`` says what was expected there) or not valid YAML."""
-    if not path.exists():
-        raise InputError(f"{path}: {what} not found")
-    try:
-        return yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML ({exc})") from exc
+    (``what`` says what was expected there), unreadable, not UTF-8, not valid YAML or has a
+    key twice in one mapping (mimicgen_pipe.yamlfile)."""
+    return load_yaml(path, what)
 
 
 def load_params(path: str | Path = "params.yaml") -> Params:

@@ -10,6 +10,7 @@ import numpy as np
 
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.taskspec import SubtaskSpec
+from mimicgen_pipe.yamlfile import load_yaml, read_text
 
 
 def first_rise(signal: np.ndarray, after: int) -> int | None:
@@ -92,33 +93,25 @@ def read_boundaries(
     for each of the N demos, from a YAML file (``<demo index>: [end, ...]``) or a CSV file
     (header ``demo,<subtask>,...``, one row per demo). An end is the first step of the next
     subtask, as split_into_segments returns. Raises InputError naming the file, the demo and
-    the subtask whose end is missing, out of range (1 .. length-1) or out of order."""
+    the subtask whose end is missing, not an integer, out of range (1 .. length-1) or out of
+    order; a demo given twice; or a file that is not UTF-8 text, valid YAML or CSV."""
     path = Path(path)
     names = [s.name for s in subtasks[:-1]]
-    if not path.exists():
-        raise InputError(f"{path}: boundaries file not found")
     if path.suffix.lower() == ".csv":
-        rows = list(csv.reader(path.read_text().splitlines()))
-        if not rows or rows[0][:1] != ["demo"]:
-            raise InputError(f"{path}: expected a header 'demo,{','.join(names)}'")
-        header = rows[0][1:]
-        if header != names:
-            raise InputError(f"{path}: columns {header}, expected {names} (subtask order)")
-        raw: dict = {}
-        for line, row in enumerate(rows[1:], start=2):
-            try:
-                raw[int(row[0])] = [int(v) for v in row[1:]]
-            except (ValueError, IndexError) as exc:
-                raise InputError(f"{path}: line {line}: expected integers ({row})") from exc
+        raw = _read_boundaries_csv(path, names)
     else:
-        import yaml
-
-        try:
-            raw = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise InputError(f"{path}: not valid YAML ({exc})") from exc
+        raw = load_yaml(path, "boundaries file")
+        if raw is None:  # an empty file: every demo is reported missing below
+            raw = {}
         if not isinstance(raw, dict):
-            raise InputError(f"{path}: expected a mapping of demo index -> list of ends")
+            raise InputError(
+                f"{path}: expected a mapping of demo index -> list of ends, got "
+                f"{type(raw).__name__} {str(raw)[:40]!r}"
+            )
+    for demo in raw:
+        # YAML reads ``true:`` as a boolean and ``0.0:`` as a float, both equal to an index
+        if isinstance(demo, bool) or not isinstance(demo, int) or demo < 0:
+            raise InputError(f"{path}: key {demo!r}: expected a demo index (an integer >= 0)")
     out = np.zeros((len(lengths), len(names)), np.int64)
     for demo, length in enumerate(lengths):
         ends = raw.get(demo)
@@ -133,10 +126,11 @@ def read_boundaries(
             )
         prev = 0
         for name, end in zip(names, ends, strict=True):
-            if not isinstance(end, int) or not 0 < end < length:
+            # a step is an integer (``true`` is an int to Python, not a step; 3.0 is refused)
+            if isinstance(end, bool) or not isinstance(end, int) or not 0 < end < length:
                 raise InputError(
                     f"{path}: demo {demo}: subtask {name!r} ends at {end!r}, expected a step "
-                    f"in 1..{length - 1} (the demo has {length} steps)"
+                    f"in 1..{length - 1} (an integer; the demo has {length} steps)"
                 )
             if end <= prev:
                 raise InputError(
@@ -145,7 +139,35 @@ def read_boundaries(
                 )
             prev = end
         out[demo] = ends
-    extra = sorted(set(raw) - set(range(len(lengths))), key=str)
+    extra = sorted(set(raw) - set(range(len(lengths))))
     if extra:
         raise InputError(f"{path}: demos {extra} are not in the store ({len(lengths)} demos)")
     return out
+
+
+def _read_boundaries_csv(path: Path, names: list[str]) -> dict[int, list[int]]:
+    """A boundaries CSV as demo index -> ends, its rows checked for integers and for a demo
+    given twice (InputError naming the file and the line)."""
+    text = read_text(path, "boundaries file (CSV)")
+    try:
+        rows = [(n, row) for n, row in enumerate(csv.reader(text.splitlines()), 1) if row]
+    except csv.Error as exc:  # e.g. a NUL byte: a binary file given as the CSV
+        raise InputError(f"{path}: not a readable CSV file ({exc})") from exc
+    if not rows or rows[0][1][:1] != ["demo"]:
+        raise InputError(f"{path}: expected a header 'demo,{','.join(names)}'")
+    header = rows[0][1][1:]
+    if header != names:
+        raise InputError(f"{path}: columns {header}, expected {names} (subtask order)")
+    raw: dict[int, list[int]] = {}
+    first_line: dict[int, int] = {}
+    for line, row in rows[1:]:
+        try:
+            demo, ends = int(row[0]), [int(v) for v in row[1:]]
+        except ValueError as exc:
+            raise InputError(f"{path}: line {line}: expected integers, got {row}") from exc
+        if demo in raw:
+            raise InputError(
+                f"{path}: demo {demo} given twice (lines {first_line[demo]} and {line})"
+            )
+        raw[demo], first_line[demo] = ends, line
+    return raw

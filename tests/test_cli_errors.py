@@ -50,18 +50,19 @@ def test_params_value_of_wrong_type(tmp_path):
     assert "params.yaml: generate.action_noise: expected a number, got 'lots'" in msg
 
 
-def make_trajectory_file(folder, control_mode="pd_ee_delta_pose", drop=None):
+def make_trajectory_file(folder, control_mode="pd_ee_delta_pose", drop=None, episodes=1):
     folder.mkdir(parents=True, exist_ok=True)
     h5 = folder / "demo.h5"
     with h5py.File(h5, "w") as f:
-        g = f.create_group("traj_0")
-        if drop != "actions":
-            g["actions"] = np.zeros((5, 7), np.float32)
-        g["env_states/actors/cubeA"] = np.zeros((6, 13), np.float32)
-        g["env_states/articulations/panda"] = np.zeros((6, 31), np.float32)
+        for i in range(episodes):
+            g = f.create_group(f"traj_{i}")
+            if drop != "actions":
+                g["actions"] = np.zeros((5, 7), np.float32)
+            g["env_states/actors/cubeA"] = np.zeros((6, 13), np.float32)
+            g["env_states/articulations/panda"] = np.zeros((6, 31), np.float32)
     meta = {
         "env_info": {"env_id": "StackCube-v1", "env_kwargs": {"control_mode": control_mode}},
-        "episodes": [{"episode_id": 0, "episode_seed": 0}],
+        "episodes": [{"episode_id": i, "episode_seed": i} for i in range(episodes)],
     }
     h5.with_suffix(".json").write_text(json.dumps(meta))
     return h5
@@ -77,6 +78,76 @@ def test_source_file_with_missing_key(tmp_path):
     h5 = make_trajectory_file(tmp_path / "input", drop="actions")
     msg = run_bad(tmp_path, "source", params=f"source: {{from_file: {h5}}}\n")
     assert "traj_0/actions missing" in msg
+
+
+def _truncate(h5):
+    data = h5.read_bytes()
+    h5.write_bytes(data[: len(data) // 2])
+
+
+@pytest.mark.parametrize(
+    ("damage", "expected"),
+    [
+        (_truncate, "demo.h5: not a readable HDF5 trajectory file (Unable to synchronously "
+                    "open file (truncated file: eof = "),
+        (lambda h5: h5.write_text("not HDF5\n"), "demo.h5: not a readable HDF5 trajectory "
+                                                  "file (Unable to synchronously open file "
+                                                  "(file signature not found))"),
+        (lambda h5: h5.with_suffix(".json").write_text("{,}"),
+         "demo.json: not valid JSON (line 1, column 2: Expecting property name"),
+    ],
+)  # fmt: skip
+def test_a_broken_source_file_is_one_error(tmp_path, damage, expected):
+    """(tests/test_user_files.py has the other broken files, without a process each)"""
+    h5 = make_trajectory_file(tmp_path / "input")
+    damage(h5)
+    msg = run_bad(tmp_path, "source", params=f"source: {{from_file: {h5}}}\n")
+    assert f"mimicgen-pipe source: error: {h5.parent / expected}" in msg
+
+
+def test_a_source_file_shorter_than_num_demos_is_one_error(tmp_path):
+    """source.num_demos: 20 with a 10-episode file used to say 20 demos and write 10."""
+    h5 = make_trajectory_file(tmp_path / "input", episodes=10)
+    msg = run_bad(tmp_path, "source", params=f"source: {{num_demos: 20, from_file: {h5}}}\n")
+    assert msg.endswith(
+        f"{h5}: 10 episodes, fewer than source.num_demos = 20 in params.yaml; ask for 10 or "
+        "fewer, or give a file with more"
+    )
+
+
+def test_params_that_are_not_utf8_are_one_error(tmp_path):
+    (tmp_path / "params.yaml").write_bytes(b"task: stack_cube  # caf\xe9\nsource: {}\n")
+    res = cli("source", cwd=tmp_path, check=False)
+    assert res.returncode == 2 and outputs(tmp_path) == []
+    assert res.stderr == (
+        "mimicgen-pipe source: error: params.yaml: not UTF-8 text (byte 0xe9 at offset 23); "
+        "expected a params file\n"
+    )
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "expected"),
+    [
+        ("b.yaml", "0: [12]\n0: [20]\n",
+         "b.yaml: not valid YAML: key 0 appears twice in one mapping (lines 1 and 2)"),
+        ("b.yaml", "0: [true]\n",
+         "b.yaml: demo 0: subtask 'grasp_cubeA' ends at True, expected a step in 1..29"),
+        ("b.csv", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR",
+         "b.csv: not UTF-8 text (byte 0x89 at offset 0); expected a boundaries file (CSV)"),
+    ],
+)  # fmt: skip
+def test_a_bad_boundaries_file_is_one_error(tmp_path, name, content, expected):
+    """bool is an int to Python: ``0: [true]`` used to be read as step 1."""
+    t = 30
+    eye = np.broadcast_to(np.eye(4), (t, 4, 4)).copy()
+    steps = [{"actions": np.zeros((t, 7), np.float32), "gripper": np.zeros(t, np.float32),
+              "eef_pose": eye, "target_pose": eye, "object_poses/cubeA": eye,
+              "object_poses/cubeB": eye}]  # fmt: skip
+    write_store(tmp_path / "input" / "src.zarr", "source", steps, {}, {"task": "stack_cube"})
+    path = tmp_path / "input" / name
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    msg = run_bad(tmp_path, "parse", "--source", "input/src.zarr", "--boundaries", str(path))
+    assert f"error: {path.parent / expected}" in msg
 
 
 def test_parse_rejects_a_nan_pose(tmp_path):
@@ -134,6 +205,12 @@ def test_every_stage_has_help(tmp_path, stage):
             "evaluate.executor: expected one of 'local', 'ray', got 'dask'",
         ),
         (MINIMAL + "ray: {adress: auto}\n", "ray.adress: unknown key (known: address)"),
+        (MINIMAL + "generate: {seed: -1}\n", "params.yaml: generate.seed: expected a value in"),
+        (
+            MINIMAL + "task: stack_cube\n",
+            "params.yaml: not valid YAML: key 'task' appears twice in one mapping (lines 1 "
+            "and 3); give each key once",
+        ),
     ],
 )
 def test_params_gaps_are_one_clear_error_at_load(tmp_path, params, expected):

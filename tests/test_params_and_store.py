@@ -47,6 +47,78 @@ def test_bad_params_name_the_key(tmp_path, text, needle):
         load_params(write(tmp_path, text))
 
 
+# every seed: generation and evaluation derive reset seeds from theirs with SeedSequence,
+# pose_noise and train seed numpy / torch generators: none takes a negative seed
+@pytest.mark.parametrize(
+    "text,needle",
+    [
+        ("generate: {seed: -1}", "generate.seed: expected a value in [0, 2147483647], got -1"),
+        ("evaluate: {seed: -3}", "evaluate.seed: expected a value in [0, 2147483647], got -3"),
+        ("pose_noise: {seed: -1}", "pose_noise.seed: expected a value in [0, 2147483647]"),
+        ("generate: {seed: 4294967296}", "generate.seed: expected a value in [0, 2147483647]"),
+        ("source: {seed: -1}", "source.seed: expected a value in [0, 536870912], got -1"),
+        (
+            "train: {cpu: {seeds: [0, -1]}}",
+            "train.cpu.seeds: expected each entry a value in [0, 2147483647], got -1",
+        ),
+        ("train: {paper: {seeds: [1, 1]}}", "train.paper.seeds: expected distinct entries"),
+        ("train: {cpu: {seeds: []}}", "train.cpu.seeds: expected at least one entry"),
+        ("generate: {seed: true}", "generate.seed: expected an integer, got True"),
+        ("source: {from_file: ''}", "source.from_file: expected a file path or null, got ''"),
+        # keys YAML reads as numbers or booleans, beside text keys
+        ("generate: {yes: 1, nosie: 2, 3: 4}", "generate.3: unknown key"),
+    ],
+)
+def test_out_of_range_seeds_and_odd_keys_name_the_key(tmp_path, text, needle):
+    with pytest.raises(InputError) as exc:
+        load_params(write(tmp_path, text))
+    assert str(exc.value).startswith(f"{tmp_path / 'params.yaml'}: ")
+    assert needle in str(exc.value)
+    assert "\n" not in str(exc.value)
+
+
+def test_the_largest_seeds_pass_and_every_derived_seed_stays_valid(tmp_path):
+    from mimicgen_pipe.evaluation import evaluation_seed
+    from mimicgen_pipe.runner import attempt_seed
+
+    top = 2**31 - 1
+    p = load_params(
+        write(
+            tmp_path,
+            f"generate: {{seed: {top}}}\nevaluate: {{seed: {top}}}\npose_noise: {{seed: {top}}}\n"
+            f"train: {{cpu: {{seeds: [0, {top}]}}}}\nsource: {{seed: {2**29}}}\n",
+        )
+    )
+    assert 0 <= attempt_seed(p.generate.seed, "D1", 10**6) < 2**30
+    assert 2**30 <= evaluation_seed(p.evaluate.seed, "D1", 10**5) < 2**31
+    np.random.default_rng(p.pose_noise.seed)
+    np.random.default_rng(p.train.cpu.seeds[-1])
+
+
+@pytest.mark.parametrize(
+    "content,needle",
+    [
+        (b"", "params.yaml: empty"),
+        (b"[task, source]\n", "params.yaml: top level: expected a mapping, got ['task', 'source']"),
+        (b"task: stack_cube\nsource: {seed: 1\n", "params.yaml: not valid YAML: line 3, column 1"),
+        (b"task: st\xe4ck\n", "params.yaml: not UTF-8 text (byte 0xe4 at offset 8)"),
+        (b"source:\n  seed: 1\n  num_demos: 2\n  seed: 3\n", "key 'seed' appears twice"),
+        (
+            b"generate: {seed: 1}\nsource: {seed: 0}\ngenerate: {seed: 2}\n",
+            "params.yaml: not valid YAML: key 'generate' appears twice in one mapping "
+            "(lines 1 and 3); give each key once",
+        ),
+    ],
+)
+def test_odd_params_files_are_one_line_naming_the_file(tmp_path, content, needle):
+    path = tmp_path / "params.yaml"
+    path.write_bytes(content)
+    with pytest.raises(InputError) as exc:
+        load_params(path)
+    assert needle in str(exc.value) and "\n" not in str(exc.value)
+    assert str(exc.value).startswith(str(path))
+
+
 def test_store_round_trip_and_atomic_replace(tmp_path):
     rng = np.random.default_rng(0)
     eps = []

@@ -19,6 +19,7 @@ import numpy as np
 
 from envs import load_task
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.yamlfile import read_text
 
 CONTROL_MODE = "pd_ee_delta_pose"
 
@@ -41,20 +42,84 @@ def _initial_state(group: h5py.Group) -> dict:
     return out
 
 
+def _integer(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _mapping(meta_path: Path, value: object, key: str) -> dict:
+    if not isinstance(value, dict):
+        raise InputError(f"{meta_path}: {key}: expected a JSON object, got {_short(value)}")
+    return value
+
+
+def _short(value: object) -> str:
+    text = json.dumps(value) if isinstance(value, (dict, list, str)) else repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def read_trajectory_meta(meta_path: Path) -> tuple[dict, list[tuple[int, int]]]:
+    """The ``.json`` beside a trajectory file: its env_info, and (episode_id, reset seed) of
+    every episode in file order (seed -1 when it has none). Raises InputError naming the
+    file and key when the file is not UTF-8 JSON, not an object, or an episode's id or seed
+    is missing, not an integer or given twice."""
+    text = read_text(meta_path, "trajectory .json")
+    try:
+        meta = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(
+            f"{meta_path}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})"
+        ) from exc
+    meta = _mapping(meta_path, meta, "top level")
+    env_info = _mapping(meta_path, meta.get("env_info", {}), "env_info")
+    _mapping(meta_path, env_info.get("env_kwargs", {}), "env_info.env_kwargs")
+    listed = meta.get("episodes", [])
+    if not isinstance(listed, list):
+        raise InputError(f"{meta_path}: episodes: expected a JSON list, got {_short(listed)}")
+    episodes: list[tuple[int, int]] = []
+    seen: set[int] = set()
+    for i, ep in enumerate(listed):
+        ep = _mapping(meta_path, ep, f"episodes[{i}]")
+        if "episode_id" not in ep:
+            raise InputError(f"{meta_path}: episodes[{i}]: no episode_id (its traj_<id> group)")
+        ep_id = ep["episode_id"]
+        if not _integer(ep_id) or ep_id < 0:
+            raise InputError(
+                f"{meta_path}: episodes[{i}].episode_id: expected an integer >= 0, got "
+                f"{_short(ep_id)}"
+            )
+        if ep_id in seen:
+            raise InputError(f"{meta_path}: episodes[{i}].episode_id: {ep_id} listed twice")
+        # ManiSkill's RecordEpisode writes episode_seed; older files only reset_kwargs.seed
+        reset_kwargs = _mapping(
+            meta_path, ep.get("reset_kwargs") or {}, f"episodes[{i}].reset_kwargs"
+        )
+        key = "episode_seed" if "episode_seed" in ep else "reset_kwargs.seed"
+        seed = ep.get("episode_seed", reset_kwargs.get("seed"))
+        if seed is None:
+            seed = -1
+        if not _integer(seed):
+            raise InputError(
+                f"{meta_path}: episodes[{i}].{key}: expected an integer, got {_short(seed)}"
+            )
+        seen.add(ep_id)
+        episodes.append((ep_id, seed))
+    return env_info, episodes
+
+
 def read_trajectory_file(
     path: str | os.PathLike, task: str, allow_empty: bool = False
 ) -> list[TrajectoryFileEpisode]:
     """Read and check every episode of a ManiSkill trajectory file before any simulation.
-    Raises InputError naming the file and key for a wrong control mode, env, missing key,
-    wrong action shape or non-finite value, or (unless ``allow_empty``) no episodes."""
+    Raises InputError naming the file and key for an unreadable or broken .h5 or .json, a
+    wrong control mode or env, a missing key, a wrong action shape or non-finite value, or
+    (unless ``allow_empty``) no episodes."""
     path = Path(path)
     meta_path = path.with_suffix(".json")
     if not path.exists():
         raise InputError(f"{path}: trajectory file not found")
     if not meta_path.exists():
         raise InputError(f"{meta_path}: the .json written beside the .h5 is missing")
-    meta = json.loads(meta_path.read_text())
-    env_info = meta.get("env_info", {})
+    env_info, listed = read_trajectory_meta(meta_path)
     mode = env_info.get("env_kwargs", {}).get("control_mode")
     if mode != CONTROL_MODE:
         raise InputError(
@@ -67,30 +132,49 @@ def read_trajectory_file(
             f"{meta_path}: env_info.env_id is {env_info.get('env_id')!r}, expected "
             f"{spec.base_env_id!r} for task {task}"
         )
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:  # not HDF5 at all, or cut short (h5py says which)
+        raise InputError(f"{path}: not a readable HDF5 trajectory file ({exc})") from exc
     episodes = []
-    with h5py.File(path, "r") as f:
-        for ep in meta.get("episodes", []):
-            name = f"traj_{ep['episode_id']}"
-            if name not in f:
-                raise InputError(f"{path}: {name} listed in the .json but missing")
-            g = f[name]
-            for key in ("actions", "env_states/actors", "env_states/articulations"):
-                if key not in g:
-                    raise InputError(f"{path}: {name}/{key} missing")
-            actions = np.asarray(g["actions"], dtype=np.float32)
-            if actions.ndim != 2 or actions.shape[1] != 7:
-                raise InputError(
-                    f"{path}: {name}/actions has shape {actions.shape}, expected (T, 7)"
-                )
-            state = _initial_state(g["env_states"])
-            flat = [actions] + [v for d in state.values() for v in d.values()]
-            if not all(np.isfinite(a).all() for a in flat):
-                raise InputError(f"{path}: {name}: NaN or infinite action or state")
-            seed = ep.get("episode_seed", ep.get("reset_kwargs", {}).get("seed", -1))
-            episodes.append(TrajectoryFileEpisode(name, int(seed), actions, state))
+    with f:
+        for ep_id, seed in listed:
+            name = f"traj_{ep_id}"
+            try:
+                episodes.append(_read_episode(path, f, name, seed))
+            except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+                # a damaged group or dataset, or one of strings where numbers belong
+                raise InputError(f"{path}: {name}: unreadable ({exc})") from exc
     if not episodes and not allow_empty:
         raise InputError(f"{path}: no episodes")
     return episodes
+
+
+def _read_episode(path: Path, f: h5py.File, name: str, seed: int) -> TrajectoryFileEpisode:
+    """One episode group of a trajectory file, checked (InputError naming the key)."""
+    if not isinstance(f.get(name), h5py.Group):
+        raise InputError(f"{path}: {name} listed in the .json but missing")
+    g = f[name]
+    for key, kind in (
+        ("actions", h5py.Dataset),
+        ("env_states/actors", h5py.Group),
+        ("env_states/articulations", h5py.Group),
+    ):
+        if not isinstance(g.get(key), kind):
+            raise InputError(f"{path}: {name}/{key} missing")
+    for key in ("env_states/actors", "env_states/articulations"):
+        for n, d in g[key].items():
+            if not isinstance(d, h5py.Dataset) or d.ndim != 2 or d.shape[0] < 1:
+                shape = getattr(d, "shape", "a group")
+                raise InputError(f"{path}: {name}/{key}/{n} is {shape}, expected (T + 1, D)")
+    actions = np.asarray(g["actions"], dtype=np.float32)
+    if actions.ndim != 2 or actions.shape[1] != 7 or len(actions) == 0:
+        raise InputError(f"{path}: {name}/actions has shape {actions.shape}, expected (T, 7)")
+    state = _initial_state(g["env_states"])
+    flat = [actions] + [v for d in state.values() for v in d.values()]
+    if not all(np.isfinite(a).all() for a in flat):
+        raise InputError(f"{path}: {name}: NaN or infinite action or state")
+    return TrajectoryFileEpisode(name, seed, actions, state)
 
 
 def run_motion_planner(

@@ -117,22 +117,25 @@ def _demo_order(names: list[str]) -> list[str]:
 def read(path: str | os.PathLike, backend: str, task: str) -> list[RobomimicDemo]:
     """Every demo of a robomimic HDF5 file, checked before any simulation: data/env_args must
     name this back end and task (as our export writes them), each demo must have actions
-    (T, 7) and states (T, S) with T >= 1 and finite values. Raises InputError naming the file
-    and key."""
+    (T, 7) and states (T, S) with T >= 1 and finite values, and an integer seed if any.
+    Raises InputError naming the file and key (also for a file that is not HDF5 or is cut
+    short)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: robomimic file not found")
     try:
         f = h5py.File(path, "r")
-    except OSError as exc:
-        raise InputError(f"{path}: not an HDF5 file ({exc})") from exc
+    except OSError as exc:  # not HDF5 at all, or truncated (h5py's message says which)
+        raise InputError(f"{path}: not a readable HDF5 file ({exc})") from exc
     with f:
-        if "data" not in f:
+        if not isinstance(f.get("data"), h5py.Group):
             raise InputError(f"{path}: no 'data' group (not a robomimic file)")
         data = f["data"]
         try:
             kwargs = json.loads(data.attrs["env_args"])["env_kwargs"]
-        except (KeyError, TypeError, ValueError) as exc:
+            if not isinstance(kwargs, dict):
+                raise TypeError(kwargs)
+        except (KeyError, TypeError, ValueError, OSError) as exc:
             raise InputError(f"{path}: data.attrs['env_args'] missing or not JSON") from exc
         got = (kwargs.get("backend"), kwargs.get("task"))
         if got != (backend, task):
@@ -142,25 +145,36 @@ def read(path: str | os.PathLike, backend: str, task: str) -> list[RobomimicDemo
             )
         demos = []
         for name in _demo_order(list(data)):
-            g = data[name]
-            for key in ("actions", "states"):
-                if key not in g:
-                    raise InputError(f"{path}: data/{name}/{key} missing")
-            actions = np.asarray(g["actions"], np.float32)
-            states = np.asarray(g["states"], np.float32)
-            if actions.ndim != 2 or actions.shape[1] != 7 or len(actions) == 0:
-                raise InputError(
-                    f"{path}: data/{name}/actions has shape {actions.shape}, expected (T, 7)"
-                )
-            if states.ndim != 2 or len(states) != len(actions):
-                raise InputError(
-                    f"{path}: data/{name}/states has shape {states.shape}, expected "
-                    f"({len(actions)}, S)"
-                )
-            if not (np.isfinite(actions).all() and np.isfinite(states).all()):
-                raise InputError(f"{path}: data/{name}: NaN or infinite action or state")
-            seed = int(g.attrs.get("seed", -1))
-            demos.append(RobomimicDemo(name, seed, states[0], actions))
+            try:
+                demos.append(_read_demo(path, data, name))
+            except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+                # a damaged group or dataset, or one of strings where numbers belong
+                raise InputError(f"{path}: data/{name}: unreadable ({exc})") from exc
     if not demos:
         raise InputError(f"{path}: no demos under data/")
     return demos
+
+
+def _read_demo(path: Path, data: h5py.Group, name: str) -> RobomimicDemo:
+    """One demo group, checked (InputError naming the key)."""
+    g = data[name]
+    if not isinstance(g, h5py.Group):
+        raise InputError(f"{path}: data/{name} is not a demo group")
+    for key in ("actions", "states"):
+        if not isinstance(g.get(key), h5py.Dataset):
+            raise InputError(f"{path}: data/{name}/{key} missing")
+    actions = np.asarray(g["actions"], np.float32)
+    states = np.asarray(g["states"], np.float32)
+    if actions.ndim != 2 or actions.shape[1] != 7 or len(actions) == 0:
+        raise InputError(f"{path}: data/{name}/actions has shape {actions.shape}, expected (T, 7)")
+    if states.ndim != 2 or len(states) != len(actions):
+        raise InputError(
+            f"{path}: data/{name}/states has shape {states.shape}, expected ({len(actions)}, S)"
+        )
+    if not (np.isfinite(actions).all() and np.isfinite(states).all()):
+        raise InputError(f"{path}: data/{name}: NaN or infinite action or state")
+    seed = g.attrs.get("seed", -1)
+    # an integer scalar (numpy's or Python's); a bool, float or string is not a seed
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise InputError(f"{path}: data/{name}.attrs['seed'] is {seed!r}, expected an integer")
+    return RobomimicDemo(name, int(seed), states[0], actions)

@@ -1,0 +1,91 @@
+"""Reading the YAML files a user writes (params.yaml, boundaries files) strictly: a key given
+twice in one mapping is an error (plain YAML loaders keep the last one silently), and every
+failure is one InputError line naming the file and, where YAML knows it, the line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mimicgen_pipe.errors import InputError
+
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+class DuplicateKeyError(yaml.constructor.ConstructorError):
+    """A key given twice in one YAML mapping; ``problem`` names it and both lines."""
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses a mapping with the same key twice. Keys are compared as
+    the values they load to, so ``1`` and ``1.0`` (one key to Python) count as the same key.
+    Keys brought in by a ``<<`` merge may still be overridden, as YAML intends."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, tuple[Any, yaml.Node]] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == _MERGE_TAG:
+                    continue
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    first, first_node = seen.setdefault(key, (key, key_node))
+                except TypeError:  # an unhashable key: the base class explains it
+                    continue
+                if first_node is not key_node:
+                    a, b = first_node.start_mark.line + 1, key_node.start_mark.line + 1
+                    name = repr(key) if repr(first) == repr(key) else f"{first!r} / {key!r}"
+                    why = f"key {name} appears twice in one mapping (lines {a} and {b})"
+                    raise DuplicateKeyError(
+                        None, None, f"{why}; give each key once", key_node.start_mark
+                    )
+        return super().construct_mapping(node, deep=deep)
+
+
+def _one_line(exc: yaml.YAMLError) -> str:
+    """A YAML error as one line: what is wrong and where (1-based line and column)."""
+    if isinstance(exc, DuplicateKeyError):
+        return str(exc.problem)
+    if isinstance(exc, yaml.reader.ReaderError):  # e.g. a NUL byte: a binary file
+        ch = exc.character
+        code = ch if isinstance(ch, int) else ord(ch)
+        return f"character U+{code:04X} at offset {exc.position} is not allowed in YAML text"
+    if isinstance(exc, yaml.MarkedYAMLError) and exc.problem_mark is not None:
+        mark = exc.problem_mark
+        context = f"{exc.context}; " if exc.context else ""
+        return f"line {mark.line + 1}, column {mark.column + 1}: {context}{exc.problem}"
+    return " ".join(str(exc).split())
+
+
+def read_text(path: str | Path, what: str) -> str:
+    """The UTF-8 text of a user's file; InputError naming the file when it is missing
+    (``what`` says what was expected there), unreadable (e.g. a folder) or not UTF-8 text
+    (e.g. a binary file given by mistake)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: {what} not found")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from exc
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            f"{path}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
+            f"expected a {what}"
+        ) from exc
+
+
+def load_yaml(path: str | Path, what: str) -> Any:
+    """The YAML document at ``path``, loaded with UniqueKeyLoader (plain data only: no
+    Python objects). InputError naming the file when it is missing (``what`` says what was
+    expected there), unreadable, not UTF-8 text, not valid YAML, or has a key twice."""
+    path = Path(path)
+    text = read_text(path, what)
+    try:
+        return yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 (a SafeLoader subclass)
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML: {_one_line(exc)}") from exc
