@@ -39,8 +39,11 @@ def generated_store(task: str, variant: str, failed: bool = False) -> Path:
 
 
 def failed_store(kept: Path) -> Path:
-    """Where a generate run's failed attempts lie: <name>_failed.zarr beside its kept store."""
-    return kept.with_name(kept.name.replace(".zarr", "_failed.zarr"))
+    """Where a generate run's failed attempts lie: <name>_failed.zarr beside its kept store
+    <name>.zarr (<name>_failed beside a kept store named without .zarr): never the kept
+    store's own path."""
+    stem = kept.name.removesuffix(".zarr")
+    return kept.with_name(f"{stem}_failed{kept.name[len(stem):]}")
 
 
 def metrics_file(stage: str, task: str, variant: str | None = None) -> Path:

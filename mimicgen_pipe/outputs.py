@@ -1,27 +1,45 @@
 """Writing stage outputs safely.
 
-- Every output is written under a temporary sibling name (``.<name>.tmp-*``) and renamed into
-  place only when complete; outputs that belong together (a generate run's kept store, failed
-  store and metrics) are renamed one after the other at the end, with signals held back, and
-  carry one run id that readers compare (:func:`check_same_run`).
-- A stage claims its outputs first (:func:`claim`): an exclusive ``flock`` on a
+- **What may be replaced.** A stage writes only to a path that is absent or already holds an
+  output of the kind it writes (:class:`OutputKind`: an episode store of the expected kind, a
+  metrics JSON object, a CSV table, a PNG image, a directory laid out as the stage lays it
+  out); never to one of its inputs, and no two outputs of one stage to the same place.
+  :func:`claim` checks all of that, with symbolic links resolved, before any work, and the
+  commit checks it again. A symbolic link at an output path is replaced by the new output
+  (the link's target is left alone).
+- **All old or all new.** Every output is written under a temporary sibling name
+  (``.<name>.tmp-*``). Outputs that belong together (a generate run's kept store, failed
+  store and metrics) are committed as one unit through a journal: once every temporary is
+  complete, a journal naming every (temporary, output) pair is written beside each output
+  (``.<name>.commit``), then each old output is moved aside and its temporary renamed into
+  place, then the journals are removed. A run killed before every journal is in place leaves
+  the old set (its temporaries are removed by the next run); one killed after is rolled
+  forward to the new set by the next run or reader of any of its outputs (:func:`recover`).
+  Outputs of one run also carry one run id that readers compare (:func:`check_same_run`).
+- **One writer.** A stage claims its outputs first: an exclusive ``flock`` on a
   ``.<name>.lock`` file beside each, held until the stage ends (the kernel drops it when the
   process dies, however it dies), so a second run writing the same outputs stops at once
-  instead of racing the first. Holding the lock, the stage removes the temporaries a killed
-  run left beside its outputs.
+  instead of racing the first. Holding the locks, the stage completes a pending commit and
+  removes the temporaries a killed run left beside its outputs.
+- **Full or read-only disks** stop a stage with one line naming the path and the free space;
+  its temporaries are removed and the previous outputs stay as they were.
 """
 
 from __future__ import annotations
 
 import atexit
 import contextlib
+import errno
 import fcntl
 import hashlib
 import json
 import os
+import re
 import shutil
+import signal
 import uuid
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,15 +51,171 @@ from mimicgen_pipe.errors import InputError
 _TEMP_KINDS = ("tmp", "old")  # .<name>.tmp-* being written, .<name>.old-* being replaced
 _staging = 0  # >0 while an output set writes its temporaries
 _written = False  # an output of this process has been renamed into place
+# Testing hook: SIGKILL this process before the N-th filesystem operation of a journaled
+# commit (1-based), so that tests can stop a real run between any two of them.
+KILL_AT_ENV = "MIMICGEN_PIPE_KILL_AT_COMMIT_OP"
+_commit_ops = 0
 
 
 class OutputBusy(InputError):
     """Another process holds the lock on an output: one line, exit status 2, like bad input."""
 
 
+# --- what an output path may hold ----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class OutputKind:
+    """What a stage writes at an output path. ``why_not(path)`` tells why what lies at an
+    existing path is not such an output (None when it is: the stage may replace it)."""
+
+    name: str
+    why_not: Callable[[Path], str | None]
+
+
+_MAX_SNIFF = 64 * 2**20  # metrics and tables larger than this are not ours
+
+
+def _json_object(path: Path) -> str | None:
+    if not path.is_file():
+        return "is not a file"
+    if path.stat().st_size > _MAX_SNIFF:
+        return "is too large for a metrics file"
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        return "is not JSON"
+    return None if isinstance(value, dict) else "is JSON but not an object"
+
+
+def _text_table(path: Path) -> str | None:
+    if not path.is_file():
+        return "is not a file"
+    if path.stat().st_size > _MAX_SNIFF:
+        return "is too large for a table"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        return "is not text"
+    return "is not text" if "\0" in text else None
+
+
+def _png(path: Path) -> str | None:
+    if not path.is_file():
+        return "is not a file"
+    with path.open("rb") as f:
+        return None if f.read(8) == b"\x89PNG\r\n\x1a\n" else "is not a PNG image"
+
+
+def store_kind(*kinds: str) -> OutputKind:
+    """An episode store (Zarr group) whose ``kind`` attribute is one of ``kinds`` (any kind
+    when none are given)."""
+
+    def why_not(path: Path) -> str | None:
+        meta = path / "zarr.json"
+        if not path.is_dir() or not meta.is_file():
+            return "is not a Zarr store"
+        try:
+            attrs = json.loads(meta.read_text(encoding="utf-8")).get("attributes", {})
+        except (UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+            return "is not a Zarr store"
+        kind = attrs.get("kind") if isinstance(attrs, dict) else None
+        if kind is None or (kinds and kind not in kinds):
+            return f"is a store of kind {kind!r}, not {' or '.join(map(repr, kinds))}"
+        return None
+
+    what = " or ".join(kinds) if kinds else "episode"
+    return OutputKind(f"{what} store", why_not)
+
+
+def directory_kind(name: str, pattern: str) -> OutputKind:
+    """A directory every file of which (path relative to it, '/'-separated) fully matches the
+    regular expression ``pattern``: a directory a stage made, recognised by what it holds."""
+    regex = re.compile(pattern)
+
+    def why_not(path: Path) -> str | None:
+        if not path.is_dir():
+            return "is not a directory"
+        for root, dirs, files in os.walk(path):
+            for f in files + [d for d in dirs if Path(root, d).is_symlink()]:
+                rel = Path(root, f).relative_to(path).as_posix()
+                if not regex.fullmatch(rel):
+                    return f"holds {rel!r}, which this stage does not write"
+        return None
+
+    return OutputKind(name, why_not)
+
+
+METRICS = OutputKind("metrics JSON", _json_object)
+TABLE = OutputKind("CSV table", _text_table)
+PNG = OutputKind("PNG image", _png)
+_BY_SUFFIX = {".zarr": store_kind(), ".json": METRICS, ".csv": TABLE, ".png": PNG}
+
+Output = str | os.PathLike | tuple[str | os.PathLike, OutputKind]
+
+
+def kind_of(path: str | os.PathLike) -> OutputKind:
+    """The kind of output a path names by its suffix (.zarr, .json, .csv, .png); other
+    outputs are claimed with their kind."""
+    kind = _BY_SUFFIX.get(Path(path).suffix)
+    if kind is None:
+        raise ValueError(f"{path}: no output kind for this name; claim it with its kind")
+    return kind
+
+
+def _why_not_replaceable(path: Path, kind: OutputKind) -> str | None:
+    """Why ``path`` may not be replaced by an output of ``kind`` (None when it is absent or
+    holds one). A link is judged by what it points to; a link to nothing holds nothing."""
+    if not path.exists():
+        return None
+    why = kind.why_not(path)
+    return None if why is None else f"{why}; expected a {kind.name} or nothing"
+
+
+def _resolved(path: Path) -> Path:
+    return Path(os.path.realpath(path))
+
+
+def _nested(a: Path, b: Path) -> bool:
+    return a == b or a in b.parents or b in a.parents
+
+
+def check_outputs(
+    outputs: Mapping[Path, OutputKind], inputs: Iterable[str | os.PathLike] = ()
+) -> None:
+    """InputError, before any work, when an output path holds something that is not an
+    output of its kind, is (or holds, or lies in) an input, or is one of the other outputs
+    (symbolic links resolved)."""
+    outs = [(p, _resolved(p)) for p in outputs]
+    for inp in map(Path, inputs):
+        ri = _resolved(inp)
+        for p, rp in outs:
+            if _nested(rp, ri):
+                raise InputError(
+                    f"{p}: the same place as the input {inp}; writing it would destroy the "
+                    "input: give another output path"
+                )
+    for i, (p, rp) in enumerate(outs):
+        for q, rq in outs[:i]:
+            if _nested(rp, rq):
+                raise InputError(f"{p}: the same place as the output {q}; give distinct paths")
+    for p in outputs:
+        why = _why_not_replaceable(p, outputs[p])
+        if why:
+            raise InputError(f"{p}: {why}; give another output path or move it away")
+
+
+# --- temporaries, replacing, committing ------------------------------------------------------
+
+
 def temporary_name(path: Path, kind: str = "tmp") -> Path:
     """A fresh sibling name that :func:`remove_stale` recognises as a leftover of ``path``."""
     return path.with_name(f".{path.name}.{kind}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+
+
+def journal_of(path: Path) -> Path:
+    """Where the journal of a pending commit of ``path`` lies."""
+    return path.with_name(f".{path.name}.commit")
 
 
 def _remove(path: Path) -> None:
@@ -54,16 +228,147 @@ def _remove(path: Path) -> None:
             path.unlink()
 
 
-def _replace(tmp: Path, path: Path) -> None:
-    """Move ``tmp`` onto ``path``. A directory cannot replace another in one rename: the old
-    one is renamed aside first and removed after."""
-    backup = None
-    if path.is_dir() and not path.is_symlink():
-        backup = temporary_name(path, "old")
-        path.rename(backup)
-    os.replace(tmp, path)
-    if backup is not None:
-        _remove(backup)
+def _op() -> None:
+    """Count one filesystem operation of a commit (see KILL_AT_ENV)."""
+    global _commit_ops
+    _commit_ops += 1
+    at = os.environ.get(KILL_AT_ENV)
+    if at and _commit_ops == int(at):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _write_journal(final: Path, entries: Sequence[tuple[Path, Path, Path]]) -> None:
+    """Write the journal beside ``final`` whole or not at all."""
+    journal = journal_of(final)
+    # named as a temporary of the output, so that a kill mid-write leaves a stale temporary
+    tmp = final.with_name(temporary_name(final).name + "-commit")
+    text = json.dumps({"commit": [[str(t), str(f), str(b)] for t, f, b in entries]})
+    with tmp.open("w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    _op()
+    os.replace(tmp, journal)
+
+
+def _read_journal(journal: Path) -> list[tuple[Path, Path, Path]]:
+    try:
+        entries = json.loads(journal.read_text())["commit"]
+        return [(Path(t), Path(f), Path(b)) for t, f, b in entries]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{journal}: not a commit journal ({exc}); remove it by hand") from exc
+
+
+def _roll_forward(entries: Sequence[tuple[Path, Path, Path]]) -> None:
+    """Put every temporary of a journaled commit in place (those already moved are skipped),
+    then remove the old outputs moved aside. Safe to repeat after a kill at any point."""
+    for tmp, final, backup in entries:
+        if not os.path.lexists(tmp):
+            continue  # moved in already
+        if os.path.lexists(final) and (final.is_dir() or final.is_symlink()):
+            _op()  # a directory cannot replace another in one rename: the old goes aside
+            final.rename(backup)
+        _op()
+        os.replace(tmp, final)
+    for _, _, backup in entries:
+        if os.path.lexists(backup):
+            _op()
+            _remove(backup)
+
+
+def _commit(pairs: Sequence[tuple[Path, Path]]) -> None:
+    """Move each temporary onto its output, all or none after a kill at any instant: a single
+    rename where that is atomic already, else through journals (module docstring)."""
+    (tmp, final), *rest = pairs
+    if not rest and not (os.path.lexists(final) and (final.is_dir() or final.is_symlink())):
+        os.replace(tmp, final)
+        return
+    entries = [(t.absolute(), f.absolute(), temporary_name(f, "old").absolute()) for t, f in pairs]
+    for _, final in pairs:
+        _write_journal(final, entries)
+    _roll_forward(entries)
+    for _, final in pairs:
+        _op()
+        journal_of(final).unlink()
+
+
+def recover(path: str | os.PathLike) -> bool:
+    """Complete a commit of ``path``'s output set that a killed run left journaled, taking
+    the locks of its outputs for the time (OutputBusy when a live run holds one). True when
+    there was one. Readers call it before reading an output; :func:`claim` calls it too."""
+    journal = journal_of(Path(path))
+    if not journal.is_file():
+        return False
+    entries = _read_journal(journal)
+    finals = [f for _, f, _ in entries]
+    taken: list[Path] = []
+    try:
+        for f in finals:
+            if lock_file(f) not in _HELD:
+                _HELD[lock_file(f)] = _acquire(f)
+                taken.append(lock_file(f))
+        if journal.is_file():  # not completed meanwhile by the run that held a lock
+            with interrupts.deferred():
+                # every journal in place: the commit had begun, and any member leads here;
+                # some missing: the run was killed writing them (nothing moved yet) or
+                # removing them (everything moved): either way there is nothing to redo
+                if all(journal_of(f).is_file() for f in finals):
+                    _roll_forward(entries)
+                for f in finals:
+                    with contextlib.suppress(FileNotFoundError):
+                        journal_of(f).unlink()
+    finally:
+        release(taken)
+    return True
+
+
+def recover_in(folder: str | os.PathLike) -> None:
+    """:func:`recover` every output in ``folder`` that has a pending commit (for readers of
+    a whole folder of outputs, such as the report)."""
+    for journal in sorted(Path(folder).glob(".*.commit")):
+        recover(journal.with_name(journal.name[1 : -len(".commit")]))
+
+
+def _disk_error(exc: OSError, path: Path, tmps: Sequence[Path]) -> InputError | None:
+    """One line for a full or read-only disk met while writing ``path`` (None for other
+    errors): the path, the free space and what had been written when it happened."""
+    if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
+        return None
+    where = path.parent if path.parent.exists() else Path(".")
+    if exc.errno == errno.EROFS:
+        return InputError(f"{path}: cannot write in {where} ({exc.strerror})")
+    written = sum(_size(t) for t in tmps)
+    free = shutil.disk_usage(where).free
+    return InputError(
+        f"{path}: no space left on the device of {where}: {_mb(free)} free, and the output "
+        f"needs more than the {_mb(written)} written when the disk filled; free space there "
+        "or write elsewhere (the previous output is unchanged)"
+    )
+
+
+def _size(path: Path) -> int:
+    if path.is_file():
+        return path.stat().st_size
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else 0
+
+
+def _mb(n: int) -> str:
+    return f"{n / 2**20:.1f} MB"
+
+
+def free_space_error(path: str | os.PathLike, needed: int) -> InputError | None:
+    """InputError when the device that will hold ``path`` has less than ``needed`` bytes
+    free (checked before writing where a full disk cannot be handled, e.g. inside HDF5)."""
+    where = Path(path)
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    free = shutil.disk_usage(where).free
+    if free >= needed:
+        return None
+    return InputError(
+        f"{path}: not enough free space on the device of {where}: {_mb(free)} free, about "
+        f"{_mb(needed)} needed"
+    )
 
 
 def wrote_outputs() -> bool:
@@ -71,38 +376,34 @@ def wrote_outputs() -> bool:
     return _written
 
 
-@contextlib.contextmanager
-def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary sibling directory of ``path``; when the block completes it replaces
-    ``path``, and when it raises (or is interrupted) it is removed and ``path`` is untouched."""
-    global _written
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_name(path)
-    tmp.mkdir()
-    try:
-        yield tmp
-        with interrupts.deferred():
-            _replace(tmp, path)
-            _written = _written or not _staging
-    finally:
-        _remove(tmp)
+def _check_claimed_or_replaceable(pairs: Sequence[tuple[Path, Path]]) -> None:
+    """At commit: every output still absent or of its kind (its claimed kind, else the kind
+    its name says)."""
+    for _, final in pairs:
+        kind = _CLAIMED.get(_resolved(final)) or _BY_SUFFIX.get(final.suffix)
+        if kind is None:
+            if os.path.lexists(final):
+                raise InputError(f"{final}: exists and is not a claimed output; not replaced")
+            continue
+        why = _why_not_replaceable(final, kind)
+        if why:
+            raise InputError(f"{final}: {why}; not replaced")
 
 
 @contextlib.contextmanager
 def output_set(*paths: str | os.PathLike) -> Iterator[list[Path]]:
     """Yield one temporary path per output (not created: the caller writes a file or a
-    directory there). When the block completes, every temporary must exist; they are renamed
-    into place in the order given, with SIGINT/SIGTERM held back, so put the output readers
-    look at first last. When the block raises, the temporaries are removed and no output
-    changes."""
+    directory there). When the block completes, every temporary must exist; they are
+    committed together (module docstring) with SIGINT/SIGTERM held back. When the block
+    raises, the temporaries are removed and no output changes; a full or read-only disk
+    becomes one InputError."""
     global _staging, _written
     finals = [Path(p) for p in paths]
     tmps = [temporary_name(p) for p in finals]
-    for p in finals:
-        p.parent.mkdir(parents=True, exist_ok=True)
-    _staging += 1
     try:
+        for p in finals:
+            p.parent.mkdir(parents=True, exist_ok=True)
+        _staging += 1
         try:
             yield tmps
         finally:
@@ -110,13 +411,29 @@ def output_set(*paths: str | os.PathLike) -> Iterator[list[Path]]:
         missing = [str(f) for t, f in zip(tmps, finals, strict=True) if not t.exists()]
         if missing:
             raise RuntimeError(f"output set: nothing was written for {missing}")
+        pairs = list(zip(tmps, finals, strict=True))
+        _check_claimed_or_replaceable(pairs)
         with interrupts.deferred():
-            for tmp, final in zip(tmps, finals, strict=True):
-                _replace(tmp, final)
-            _written = True
+            _commit(pairs)
+            _written = _written or not _staging
+    except OSError as exc:
+        error = _disk_error(exc, finals[0], tmps)
+        if error is None:
+            raise
+        raise error from exc
     finally:
         for tmp in tmps:
             _remove(tmp)
+
+
+@contextlib.contextmanager
+def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary sibling directory of ``path``; when the block completes it replaces
+    ``path`` (an output set of one), and when it raises (or is interrupted) it is removed and
+    ``path`` is untouched."""
+    with output_set(path) as (tmp,):
+        tmp.mkdir()
+        yield tmp
 
 
 def stale_temporaries(path: str | os.PathLike) -> list[Path]:
@@ -134,7 +451,8 @@ def stale_temporaries(path: str | os.PathLike) -> list[Path]:
 
 
 def remove_stale(path: str | os.PathLike) -> list[Path]:
-    """Remove the stale temporaries of ``path``; call it only while holding its lock."""
+    """Remove the stale temporaries of ``path``; call it only while holding its lock and
+    after :func:`recover` (a pending commit's temporaries are not stale)."""
     stale = stale_temporaries(path)
     for p in stale:
         _remove(p)
@@ -144,6 +462,7 @@ def remove_stale(path: str | os.PathLike) -> list[Path]:
 # --- locks ---------------------------------------------------------------------------------
 
 _HELD: dict[Path, int] = {}  # lock file -> open descriptor holding the flock
+_CLAIMED: dict[Path, OutputKind] = {}  # resolved output path -> the kind claimed for it
 
 
 def lock_file(path: str | os.PathLike) -> Path:
@@ -166,7 +485,10 @@ def _acquire(path: Path) -> int:
     one at that name (else a third process may lock a new file there) and retry if not."""
     lock = lock_file(path)
     for _ in range(20):
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise InputError(f"{path}: cannot write in {lock.parent} ({exc.strerror})") from exc
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -189,23 +511,42 @@ def _acquire(path: Path) -> int:
     raise OutputBusy(f"{path}: could not lock {lock} (it keeps being replaced)")
 
 
-def claim(*paths: str | os.PathLike) -> None:
-    """Lock every output of the stage (all or none), then remove what killed runs left
-    beside them. Held until :func:`release` (the entry point calls it when the stage ends)
-    or the process exits; claiming a path this process holds already is a no-op."""
+def claim(*outputs: Output, inputs: Iterable[str | os.PathLike] = ()) -> None:
+    """Before any work: lock every output of the stage (all or none), complete a commit a
+    killed run left pending, remove what killed runs left beside them, and check
+    (:func:`check_outputs`) that each output may be written: absent or of its kind (given
+    as ``(path, kind)``, else :func:`kind_of` its name), not an input, not another output.
+    Held until :func:`release` (the entry point calls it when the stage ends) or the process
+    exits; claiming a path this process holds already is a no-op."""
+    kinds = {
+        Path(o[0]) if isinstance(o, tuple) else Path(o): o[1]
+        if isinstance(o, tuple)
+        else kind_of(o)
+        for o in outputs
+    }
+    if len(kinds) < len(outputs):
+        raise InputError("the same output path is given twice; give distinct paths")
+    check_outputs(kinds, inputs)  # before locking, so that a bad path leaves nothing behind
     taken: list[Path] = []
     try:
-        for p in map(Path, paths):
+        for p in kinds:
             lock = lock_file(p)
             if lock in _HELD:
                 continue
-            p.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                p.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise InputError(f"{p}: cannot create {p.parent} ({exc.strerror})") from exc
             _HELD[lock] = _acquire(p)
             taken.append(lock)
+        for p in kinds:
+            recover(p)
+        check_outputs(kinds, inputs)  # what a completed commit put there
     except BaseException:
         release(taken)
         raise
-    for p in paths:
+    for p, kind in kinds.items():
+        _CLAIMED[_resolved(p)] = kind
         remove_stale(p)
 
 
@@ -219,6 +560,8 @@ def release(locks: list[Path] | None = None) -> None:
         with contextlib.suppress(FileNotFoundError):
             lock.unlink()
         os.close(fd)
+    if locks is None:
+        _CLAIMED.clear()
 
 
 atexit.register(release)

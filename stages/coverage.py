@@ -19,7 +19,7 @@ from mimicgen_pipe.coverage import (
 )
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.outputs import check_same_run
+from mimicgen_pipe.outputs import check_same_run, claim
 from mimicgen_pipe.store import read_store
 from stages import add_generated_arguments, add_selection_arguments, stage_params
 
@@ -49,6 +49,7 @@ def run(args: argparse.Namespace) -> None:
     metrics_path = Path(args.metrics or layout.metrics_file("coverage", params.task, args.variant))
     table_path = Path(args.table or layout.plot_file("coverage", params.task, args.variant))
     heatmap_path = Path(args.heatmap or layout.heatmap_file(params.task, args.variant))
+    claim(metrics_path, table_path, heatmap_path, inputs=[kept_path, failed_path])
     n_obj = len(spec.objects)
     initial, run_ids = {}, {}
     for path, kind in ((kept_path, "generated"), (failed_path, "failed")):

@@ -55,6 +55,22 @@ def find_checkpoints(directory: Path) -> dict[int, list[Path]]:
     return runs
 
 
+def check_meta(ckpt: Path, meta: dict) -> None:
+    """The meta keys an evaluation reads: ``task`` (a string) and ``epoch`` (a positive
+    integer); one line naming the file and the key otherwise."""
+    for key, kind, ok in (
+        ("task", "a task name", lambda v: isinstance(v, str)),
+        ("epoch", "a positive integer", lambda v: type(v) is int and v > 0),
+    ):
+        if key not in meta:
+            raise InputError(
+                f"{ckpt}: meta has no {key!r} (expected {kind}); not a checkpoint the train "
+                "stage wrote"
+            )
+        if not ok(meta[key]):
+            raise InputError(f"{ckpt}: meta {key!r} is {meta[key]!r}, expected {kind}")
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
@@ -63,7 +79,8 @@ def run(args: argparse.Namespace) -> None:
     policies = Path(args.policies or layout.policy_dir(params.task, args.data))
     metrics_path = Path(args.metrics or layout.metrics_file("evaluate", params.task, name))
     plot_path = Path(args.plot or layout.plot_file("evaluate", params.task, name))
-    claim(metrics_path, plot_path)  # fails at once if another run writes them
+    claim(metrics_path, plot_path, inputs=[policies])  # fails at once if another run writes them
+    executor = stage_executor(params, "evaluate")  # refuses unsafe Ray settings before any work
 
     # a policy acts with the arm its training data was recorded with
     robot = params.source.robot if args.data == "source" else params.generate.robot
@@ -74,6 +91,7 @@ def run(args: argparse.Namespace) -> None:
     data_run_ids: dict[str, object] = {}
     for ckpt in (c for ckpts in runs.values() for c in ckpts):
         model, meta = load_checkpoint(ckpt)
+        check_meta(ckpt, meta)
         layout_ = dict(zip(model.config.obs_keys, model.config.obs_dims, strict=True))
         wrong = {k: d for k, d in layout_.items() if expected.get(k) != d}
         if meta.get("task") != params.task or wrong:
@@ -114,7 +132,7 @@ def run(args: argparse.Namespace) -> None:
     success: dict[str, list[bool]] = {n: [] for n in names}
     t0 = time.perf_counter()
     bar = tqdm(total=len(names) * e.episodes, desc=f"evaluate {name}", unit="episode")
-    results = run_evaluation(job, names, seeds, stage_executor(params, "evaluate"))
+    results = run_evaluation(job, names, seeds, executor)
     try:
         for ckpt, rollouts in results:
             success[ckpt] += [r.success for r in rollouts]

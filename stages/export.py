@@ -14,7 +14,7 @@ from mimicgen_pipe import exporters, layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.outputs import claim, output_set
+from mimicgen_pipe.outputs import claim, free_space_error, output_set
 from mimicgen_pipe.store import read_store
 from stages import add_selection_arguments, stage_params
 
@@ -48,7 +48,13 @@ def run(args: argparse.Namespace) -> None:
     )
     for fmt in formats:  # every format's check before anything is written
         exporters.check(store, fmt, info)
-    claim(out, metrics_path)
+    claim((out, exporters.EXPORT_DIR), metrics_path, inputs=[store_path])
+    # HDF5 cannot be stopped cleanly on a full disk (it may crash the process): make sure
+    # beforehand that every format's arrays fit uncompressed
+    arrays = [*store.data.values(), *store.episodes.values()]
+    error = free_space_error(out, len(formats) * sum(a.nbytes for a in arrays))
+    if error is not None:
+        raise error
     metrics: dict[str, float | int] = {"episodes": store.n_episodes}
     with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
         tmp_out.mkdir()

@@ -14,14 +14,15 @@ from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.generation import Attempt, GenerationConfig
 from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.outputs import claim, output_set, run_id, store_digest
-from mimicgen_pipe.params import data_params, stage_executor
+from mimicgen_pipe.outputs import claim, output_set, run_id, store_digest, store_kind
+from mimicgen_pipe.params import data_params, range_error, stage_executor
 from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.resume import WorkDir, code_digest
 from mimicgen_pipe.runner import (
     ATTEMPTS_PER_BLOCK,
+    AttemptBlockCodec,
     AttemptJob,
-    attempt_seed,
+    AttemptSeeds,
     check_workspace,
     episode_fields,
     generate,
@@ -62,14 +63,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     g = params.generate
+    # the options stand in for params keys, and are held to the same ranges
+    for flag, key, value in (
+        ("--attempts", "generate.max_attempts", args.attempts),
+        ("--action-noise", "generate.action_noise", args.action_noise),
+    ):
+        why = range_error(key, value) if value is not None else None
+        if why:
+            raise InputError(f"{flag} {value}: {why}")
     if args.attempts is not None:
-        if args.attempts < 1:
-            raise InputError(f"--attempts {args.attempts}: expected a positive number")
         g = dataclasses.replace(g, mode="fixed_attempts", max_attempts=args.attempts)
         params = dataclasses.replace(params, generate=g)
     if args.action_noise is not None:
-        if not args.action_noise >= 0:
-            raise InputError(f"--action-noise {args.action_noise}: expected a number >= 0")
         g = dataclasses.replace(g, action_noise=args.action_noise)
         params = dataclasses.replace(params, generate=g)
     spec = envs.task_spec(params.backend, params.task)
@@ -83,11 +88,18 @@ def run(args: argparse.Namespace) -> None:
         g = dataclasses.replace(g, action_noise=sigma)
         params = dataclasses.replace(params, generate=g)
     envs.check_robot(params.backend, g.robot)
+    executor = stage_executor(params, "generate")  # refuses unsafe Ray settings before any work
     parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
     out = Path(args.out or layout.generated_store(params.task, args.variant))
     failed_out = layout.failed_store(out)
     metrics_path = Path(args.metrics or layout.metrics_file("generate", params.task, args.variant))
-    claim(out, failed_out, metrics_path)  # one run per output set; fails at once if taken
+    # one run per output set (fails at once if taken); never over an input or anything else
+    claim(
+        (out, store_kind("generated")),
+        (failed_out, store_kind("failed")),
+        metrics_path,
+        inputs=[parsed_path],
+    )
     store = read_store(
         parsed_path,
         required=["target_pose", "gripper"] + [f"object_poses/{o}" for o in spec.objects],
@@ -109,7 +121,7 @@ def run(args: argparse.Namespace) -> None:
         config=config,
         variant=args.variant,
     )
-    seeds = [attempt_seed(g.seed, args.variant, i) for i in range(g.max_attempts)]
+    seeds = AttemptSeeds(g.seed, args.variant, g.max_attempts)  # each computed when needed
     check_workspace(job, seeds, g.robot)
     # the same id for the same data-shaping params and input, whatever the worker count, so
     # that the stores stay byte-identical; readers check that kept, failed and metrics agree
@@ -120,7 +132,13 @@ def run(args: argparse.Namespace) -> None:
     )
     # finished blocks of this run go to a work directory beside the output as they come
     # back; a killed run started again with the same params, input and code resumes there
-    work = WorkDir.open(out, f"{run}/{ATTEMPTS_PER_BLOCK}/{code_digest('mimicgen_pipe', 'envs')}")
+    work = WorkDir.open(
+        out,
+        f"{run}/{ATTEMPTS_PER_BLOCK}/{code_digest('mimicgen_pipe', 'envs')}",
+        AttemptBlockCodec(seeds),
+    )
+    for line in work.discarded:
+        print(f"generate: {line}")
     if work.resumed:
         print(f"generate: resuming: {len(work.resumed)} finished blocks of attempts in {work.path}")
     guarantee = g.mode == "guarantee"
@@ -134,7 +152,6 @@ def run(args: argparse.Namespace) -> None:
         bar.update(1 if (attempt.success or not guarantee) else 0)
         bar.set_postfix(attempts=attempts, dgr=f"{100 * kept / attempts:.1f}%")
 
-    executor = stage_executor(params, "generate")
     try:
         result = generate(
             job, seeds, executor, work, g.num_demos if guarantee else None, progress, g.robot

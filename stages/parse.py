@@ -10,6 +10,7 @@ import numpy as np
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.outputs import claim, store_kind
 from mimicgen_pipe.segments import read_boundaries, split_into_segments, validate_segments
 from mimicgen_pipe.store import read_store, write_store
 from stages import add_selection_arguments, stage_params
@@ -28,6 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
+    if args.boundaries == "":  # would fall back to the term signals without a word
+        raise InputError("--boundaries: expected a file path, got ''")
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
     src_path = Path(args.source or layout.source_store(params.task))
@@ -35,6 +38,8 @@ def run(args: argparse.Namespace) -> None:
     signals = sorted({s.term_signal for s in spec.subtasks if s.term_signal})
     pose_keys = ["eef_pose", "target_pose"] + [f"object_poses/{o}" for o in spec.objects]
     sig_keys = [] if args.boundaries else [f"subtask_signals/{s}" for s in signals]
+    given = [src_path, *([args.boundaries] if args.boundaries else [])]
+    claim((out, store_kind("parsed")), inputs=given)
     store = read_store(
         src_path,
         required=["actions", "gripper", *pose_keys, *sig_keys],

@@ -10,6 +10,7 @@ import numpy as np
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.outputs import claim, store_kind
 from mimicgen_pipe.pose_noise import perturb_pose, pose_noise_level, store_attrs
 from mimicgen_pipe.store import read_store, write_store
 from stages import add_selection_arguments, stage_params
@@ -33,6 +34,7 @@ def run(args: argparse.Namespace) -> None:
     parsed_path = Path(args.parsed or layout.parsed_store(params.task))
     out = Path(args.out or layout.pose_noise_store(params.task))
     keys = [f"object_poses/{o}" for o in spec.objects]
+    claim((out, store_kind("parsed")), inputs=[parsed_path])
     store = read_store(
         parsed_path,
         required=keys,

@@ -13,10 +13,13 @@ import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.outputs import check_same_run, claim, output_set
+from mimicgen_pipe.outputs import check_same_run, claim, directory_kind, output_set
 from mimicgen_pipe.store import read_store
 from mimicgen_pipe.video import caption, subtask_at_steps, write_gif, write_mp4
 from stages import add_generated_arguments, add_selection_arguments, stage_params
+
+# what the stage writes in its media directory: videos of kept and failed attempts
+MEDIA_DIR = directory_kind("media directory", r"(kept|failed)_\d+\.(mp4|gif)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -43,7 +46,7 @@ def run(args: argparse.Namespace) -> None:
         if store.n_episodes and "env_state" not in store.data:
             raise InputError(f"{store.path}: missing data keys ['env_state']")
     check_same_run({k: s.attrs.get("run_id") for k, s in stores.items()})
-    claim(out, metrics_path)
+    claim((out, MEDIA_DIR), metrics_path, inputs=[kept_path, failed_path])
     attrs = stores["generated"].attrs
     renderer = envs.make_renderer(params.backend, params.task, attrs["robot"], r.width, r.height)
     fps = int(attrs["control_freq"])

@@ -10,7 +10,7 @@ from typing import Any
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.outputs import atomic_directory, claim
+from mimicgen_pipe.outputs import atomic_directory, claim, directory_kind, recover_in
 from mimicgen_pipe.params import load_params
 from mimicgen_pipe.report import (
     Run,
@@ -27,6 +27,9 @@ from mimicgen_pipe.report import (
     video_blocks,
 )
 from stages import add_selection_arguments, stage_params
+
+# the report and the heat maps copied beside it
+REPORT_DIR = directory_kind("report directory", r"report\.(md|html)|[^/]+\.png")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -50,6 +53,7 @@ def read_metrics(folder: Path) -> dict[str, dict[str, Any]]:
     """Every flat metrics JSON directly in ``folder``: file stem -> metrics; InputError when
     two of them describe different generate runs (see check_run_ids)."""
     out = {}
+    recover_in(folder)  # commits that killed runs left half done
     for path in sorted(folder.glob("*.json")):
         try:
             value = json.loads(path.read_text())
@@ -77,7 +81,8 @@ def run(args: argparse.Namespace) -> None:
     metrics_dir = Path(args.metrics)
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
     out = Path(args.out or layout.report_dir())
-    claim(out)  # fails at once if another run writes the report
+    # fails at once if another run writes the report, or if out holds anything else
+    claim((out, REPORT_DIR), inputs=[metrics_dir])
     paper = load_paper_results(args.paper)
     if not metrics_dir.is_dir():
         raise InputError(f"{metrics_dir}: metrics folder not found")

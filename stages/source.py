@@ -14,8 +14,8 @@ from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.generation import replay_actions
 from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.outputs import claim, output_set
-from mimicgen_pipe.params import data_params
+from mimicgen_pipe.outputs import claim, output_set, store_kind
+from mimicgen_pipe.params import Params, data_params
 from stages import add_selection_arguments, stage_params
 
 
@@ -30,14 +30,48 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 SEEDS_PER_DEMO = 20
 
 
+def check_source_file(params: Params, params_path: str) -> int:
+    """Read and check every episode of ``source.from_file`` (not None) before the simulator
+    starts, as the back end's reader will: a robomimic ``.hdf5``/``.hdf`` on either back
+    end, a ManiSkill trajectory ``.h5`` with its ``.json`` on maniskill. Returns the number
+    of episodes; InputError naming the file and key when it is unreadable or broken, or has
+    fewer episodes than source.num_demos (of which the first num_demos are used)."""
+    p = params.source
+    assert p.from_file is not None
+    if Path(p.from_file).suffix.lower() in (".hdf5", ".hdf"):
+        from mimicgen_pipe.exporters import robomimic
+
+        n = len(robomimic.read(p.from_file, params.backend, params.task))
+    elif params.backend == "maniskill":
+        from envs.maniskill.source import read_trajectory_file
+
+        n = len(read_trajectory_file(p.from_file, params.task))
+    else:
+        raise InputError(
+            f"{params_path}: source.from_file: {p.from_file}: ManiSkill trajectory files (.h5) "
+            f"are read on the maniskill back end only; on {params.backend} give a robomimic "
+            ".hdf5 (as the export stage writes) or null for the scripted demonstrator"
+        )
+    if n < p.num_demos:
+        raise InputError(
+            f"{p.from_file}: {n} episode{'s' if n != 1 else ''}, fewer than source.num_demos "
+            f"= {p.num_demos} in {params_path}; ask for {n} or fewer, or give a file with more"
+        )
+    return n
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
     p = params.source
     envs.check_robot(params.backend, p.robot)
+    if p.from_file is not None:  # read and checked whole before the simulator starts
+        check_source_file(params, args.params)
     out = Path(args.out or layout.source_store(params.task))
     metrics_path = Path(args.metrics or layout.metrics_file("source", params.task))
-    claim(out, metrics_path)  # fails at once if another run writes them
+    given = [p.from_file, str(Path(p.from_file).with_suffix(".json"))] if p.from_file else []
+    # fails at once if another run writes them, or if they would replace anything else
+    claim((out, store_kind("source")), metrics_path, inputs=given)
     env = envs.make_env(params.backend, params.task, p.robot, params.maniskill.fast_step)
     kept, seeds, init_poses = [], [], []
     demonstrator_failures = replay_failures = seeds_tried = 0
@@ -75,8 +109,9 @@ def run(args: argparse.Namespace) -> None:
         raise InputError(
             f"{params.task}: the demonstrator gave {len(kept)} of source.num_demos = "
             f"{p.num_demos} demos that succeed on replay in {seeds_tried} seeds from "
-            f"source.seed = {p.seed} ({demonstrator_failures} failed plans, {replay_failures} "
-            "failed replays); ask for fewer demos or look at the demonstrator"
+            f"source.seed = {p.seed} ({demonstrator_failures} seeds without a usable demo, "
+            f"{replay_failures} demos failed on replay); ask for fewer demos or look at the "
+            "demonstrator"
         )
     from mimicgen_pipe.store import write_store
 

@@ -18,23 +18,24 @@ from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.outputs import claim, output_set
+from mimicgen_pipe.outputs import claim, directory_kind, output_set
 from mimicgen_pipe.params import Params, training_params
 from mimicgen_pipe.policy import PolicyConfig
-from mimicgen_pipe.store import read_store
 from mimicgen_pipe.training import (
     TrainConfig,
     TrainingRun,
-    dataset_from_store,
     default_device,
+    load_training_data,
     run_trainings,
     save_checkpoint,
-    split_episodes,
-    subset,
 )
 from stages import add_selection_arguments, stage_params
 
 SPLIT_SEED = 0  # the train/validation split is the same for every training seed
+
+
+# a policy directory: the checkpoints of every training seed
+POLICY_DIR = directory_kind("policy directory", r"seed\d+/epoch\d+\.pt")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -119,12 +120,19 @@ def run(args: argparse.Namespace) -> None:
     if not prof.seeds:
         raise InputError(f"{args.params}: train.{t.profile}.seeds: expected at least one seed")
     todo = policies(args, params)
-    # fails at once if another run writes them
-    claim(*(path for p in todo for path in (p.out, p.metrics, p.plot)))
-    stores = [
-        read_store(
+    # fails at once if another run writes them, or if they would replace anything else
+    claim(
+        *(o for p in todo for o in ((p.out, POLICY_DIR), p.metrics, p.plot)),
+        inputs=[p.store for p in todo],
+    )
+    # only the arrays and episodes the trainings use are read, each store checked first
+    datasets = [
+        load_training_data(
             p.store,
-            required=["actions"],
+            t.obs_keys,
+            None if p.data == "source" else t.num_demos,
+            t.val_fraction,
+            SPLIT_SEED,
             task=params.task,
             kind="source" if p.data == "source" else "generated",
         )
@@ -146,18 +154,12 @@ def run(args: argparse.Namespace) -> None:
     runs: list[TrainingRun] = []
     owners: list[int] = []  # the policy each run trains
     metas: list[dict] = []
-    for k, (p, store) in enumerate(zip(todo, stores, strict=True)):
-        data, dims = dataset_from_store(
-            store, t.obs_keys, None if p.data == "source" else t.num_demos
-        )
-        train_eps, val_eps = split_episodes(
-            data.n_episodes, t.val_fraction, np.random.default_rng(SPLIT_SEED)
-        )
-        train_data, val_data = subset(data, train_eps), subset(data, val_eps)
+    for k, (p, data) in enumerate(zip(todo, datasets, strict=True)):
+        train_data, val_data = data.train, data.val
         policy = PolicyConfig(
             tuple(t.obs_keys),
-            dims,
-            int(data.actions.shape[1]),
+            data.obs_dims,
+            data.action_dim,
             hidden=prof.hidden,
             layers=prof.layers,
             seq_len=prof.seq_len,
@@ -170,13 +172,13 @@ def run(args: argparse.Namespace) -> None:
             {
                 "task": params.task,
                 "backend": params.backend,
-                "robot": store.attrs.get("robot"),
+                "robot": data.attrs.get("robot"),
                 "data": p.data,
                 "store": str(p.store),
                 # the generate run whose data this is (none for source demos): the report
                 # checks it
-                "data_run_id": store.attrs.get("run_id"),
-                "control_mode": store.attrs.get("control_mode"),
+                "data_run_id": data.attrs.get("run_id"),
+                "control_mode": data.attrs.get("control_mode"),
                 "train_episodes": int(train_data.n_episodes),
                 "val_episodes": int(val_data.n_episodes),
                 "train_params": training_params(t),

@@ -14,18 +14,29 @@ attrs and params.yaml.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.outputs import directory_kind
 from mimicgen_pipe.store import EpisodeStore
 from mimicgen_pipe.taskspec import TaskSpec
 
 FORMATS = ("robomimic", "lerobot", "maniskill")
 # what each format writes inside the export directory
 FILE_NAMES = {"robomimic": "demos.hdf5", "lerobot": "lerobot", "maniskill": "trajectory.h5"}
+# an export directory holds those files (ManiSkill's .json beside its .h5) and nothing else,
+# so that the stage replaces only a directory it made
+EXPORT_DIR = directory_kind(
+    "export directory",
+    "|".join(
+        rf"{re.escape(Path(n).stem)}\.(h5|json)" if n.endswith(".h5") else rf"{re.escape(n)}(/.+)?"
+        for n in FILE_NAMES.values()
+    ),
+)
 
 
 @dataclass(frozen=True)
