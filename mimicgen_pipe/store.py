@@ -34,16 +34,10 @@ STORE_KINDS = ("source", "parsed", "generated", "failed")
 _CODECS = (ZstdCodec(level=0, checksum=False), Crc32cCodec())
 
 
-@dataclass(frozen=True)
-class EpisodeStore:
-    """An episode store read into memory: ``data`` key -> (N_steps, ...) array,
-    ``episodes`` key -> (N_episodes, ...) array, ``attrs`` the group attributes."""
+class _Episodes:
+    """Episode bookkeeping from ``episode_ends`` (N_episodes,) cumulative exclusive ends."""
 
-    path: Path
-    data: Mapping[str, np.ndarray]
     episode_ends: np.ndarray
-    episodes: Mapping[str, np.ndarray]
-    attrs: Mapping[str, Any]
 
     @property
     def n_episodes(self) -> int:
@@ -57,6 +51,18 @@ class EpisodeStore:
     def lengths(self) -> np.ndarray:
         """(N_episodes,) int64 steps per episode."""
         return self.episode_ends - self.episode_starts
+
+
+@dataclass(frozen=True)
+class EpisodeStore(_Episodes):
+    """An episode store read into memory: ``data`` key -> (N_steps, ...) array,
+    ``episodes`` key -> (N_episodes, ...) array, ``attrs`` the group attributes."""
+
+    path: Path
+    data: Mapping[str, np.ndarray]
+    episode_ends: np.ndarray
+    episodes: Mapping[str, np.ndarray]
+    attrs: Mapping[str, Any]
 
     def episode(self, i: int) -> dict[str, np.ndarray]:
         s, e = self.episode_starts[i], self.episode_ends[i]
@@ -313,7 +319,7 @@ _BLOCK_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
-class StoreView:
+class StoreView(_Episodes):
     """An episode store opened for partial reads: header, episode bookkeeping and array
     shapes are checked as :func:`read_store` checks them, but an array is read only when
     asked for, and then only the rows of the episodes asked for. ``arrays``: every array,
@@ -323,19 +329,6 @@ class StoreView:
     attrs: Mapping[str, Any]
     episode_ends: np.ndarray
     arrays: Mapping[str, zarr.Array]
-
-    @property
-    def n_episodes(self) -> int:
-        return len(self.episode_ends)
-
-    @property
-    def episode_starts(self) -> np.ndarray:
-        return np.concatenate([[0], self.episode_ends[:-1]]).astype(np.int64)
-
-    @property
-    def lengths(self) -> np.ndarray:
-        """(N_episodes,) int64 steps per episode."""
-        return self.episode_ends - self.episode_starts
 
     @property
     def data_keys(self) -> list[str]:
