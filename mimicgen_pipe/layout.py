@@ -43,7 +43,7 @@ def failed_store(kept: Path) -> Path:
     <name>.zarr (<name>_failed beside a kept store named without .zarr): never the kept
     store's own path."""
     stem = kept.name.removesuffix(".zarr")
-    return kept.with_name(f"{stem}_failed{kept.name[len(stem):]}")
+    return kept.with_name(f"{stem}_failed{kept.name[len(stem) :]}")
 
 
 def metrics_file(stage: str, task: str, variant: str | None = None) -> Path:

@@ -401,14 +401,17 @@ def open_store(
 ) -> StoreView:
     """Open a store for partial reads, checking before any work what :func:`read_store`
     checks without reading the step arrays: schema version, kind, task, required keys,
-    episode bookkeeping and pose shapes (subtask ends included). Checksums and finite values
-    are checked for what is then read. Memory: the episode ends, O(N_episodes)."""
+    episode bookkeeping, pose shapes (subtask ends included) and that no chunk is missing.
+    Checksums and finite values are checked for what is then read. Memory: the episode
+    ends, O(N_episodes)."""
     path = Path(path)
     recover(path)  # a commit of its output set that a killed run left half done
     groups, attrs = _open_root(path, task, kind)
     arrays = _members(groups[0], "data/") | _members(groups[1], "meta/")
     if "meta/episode_ends" not in arrays:
         raise InputError(f"{path}: meta/episode_ends missing (not an episode store)")
+    for key, member in arrays.items():  # a listing, not a read: a damaged store stops here
+        _check_chunks(path, key, member)
     ends = np.asarray(
         _read_array(path, "meta/episode_ends", arrays["meta/episode_ends"]), dtype=np.int64
     )
