@@ -4,13 +4,14 @@ coverage with params.yaml plus the run's overrides, a fixed number of attempts o
     python benchmarks/ablations.py [--variant D1] [--attempts 200] [--workers 1]
         [--only default action_noise_0 ...] [--list]
     python benchmarks/ablations.py --task pull_cube_tool --action-noise 0.025 \
-        --save metrics/suite_ablations/pull_cube_tool --work data/suite_ablations/pull_cube_tool
+        --save suite/metrics/ablations/pull_cube_tool --work data/suite_ablations/pull_cube_tool
 
 Each run saves its params.yaml and metrics under metrics/ablations/<name>/ (what the report
-stage reads, comparing every run with the one that has params.yaml's settings) and its
-stores under data/ablations/<name>/. Every run uses the same attempt seeds unless it changes
+stage reads, comparing every run with the one that has params.yaml's settings; a suite task's
+runs go under suite/metrics/ablations/<task>/, read by `report --suite`) and its stores under
+data/ablations/<name>/. Every run uses the same attempt seeds unless it changes
 the seed, so runs see the same scenes and their DGRs are compared pair by pair. The same
-ablations as experiments of the pipeline: README, "Ablations as experiments".
+ablations as experiments of the pipeline: docs/workflow.md.
 """
 
 from __future__ import annotations

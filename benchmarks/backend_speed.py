@@ -17,9 +17,8 @@ import numpy as np
 
 import envs
 from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed
+from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 from mimicgen_pipe.store import read_store
-from stages.generate import source_demos
 
 BACKENDS = {
     "maniskill": ("stack_cube", "data/pose_noise/stack_cube.zarr"),

@@ -23,9 +23,14 @@ import envs
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.generation import GenerationConfig
 from mimicgen_pipe.resume import WorkDir
-from mimicgen_pipe.runner import AttemptBlockCodec, AttemptJob, attempt_seed, run_attempts
+from mimicgen_pipe.runner import (
+    AttemptBlockCodec,
+    AttemptJob,
+    attempt_seed,
+    run_attempts,
+    source_demos,
+)
 from mimicgen_pipe.store import read_store
-from stages.generate import source_demos
 
 
 def timed(job: AttemptJob, seeds: list[int], executor: Executor, tmp: Path) -> tuple[float, list]:

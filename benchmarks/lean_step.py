@@ -1,4 +1,4 @@
-"""ManiSkill's stock step vs the lean step (maniskill.fast_step), StackCube, one process, one
+"""ManiSkill's stock step vs the lean step (maniskill.lean_step), StackCube, one process, one
 run: ms per control step, seconds per generation attempt, the physics floor, the generator's
 overhead, and seconds per policy-evaluation episode.
 
@@ -23,12 +23,11 @@ import numpy as np
 import envs
 from mimicgen_pipe.evaluation import evaluation_seed, rollout
 from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed
+from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 from mimicgen_pipe.store import read_store
-from stages.generate import source_demos
 
 TASK = "stack_cube"
-MIMICGEN_S_PER_ATTEMPT = (2.0, 2.3)  # the official code on this machine (PLATFORM.md)
+MIMICGEN_S_PER_ATTEMPT = (2.0, 2.3)  # the official MimicGen code, Stack D0, run on this machine
 
 
 class Timed:
@@ -95,7 +94,7 @@ def main() -> None:
     spec = envs.task_spec("maniskill", TASK)
     sources = source_demos(read_store(args.parsed, ["target_pose"]), spec.objects)
     paths = {"stock": False, "lean": True}
-    env = {name: envs.make_env("maniskill", TASK, fast_step=fast) for name, fast in paths.items()}
+    env = {name: envs.make_env("maniskill", TASK, lean_step=lean) for name, lean in paths.items()}
     seeds = [attempt_seed(0, args.variant, i) for i in range(args.attempts)]
     seconds = dict.fromkeys(paths, 0.0)
     attempts: dict[str, list] = {name: [] for name in paths}
@@ -137,7 +136,7 @@ def main() -> None:
     print(f"  stock                     {seconds['stock'] / n:.3f}")
     print(f"  lean                      {seconds['lean'] / n:.3f}")
     lo, hi = MIMICGEN_S_PER_ATTEMPT
-    print(f"  official MimicGen         {lo}-{hi} (PLATFORM.md, Stack D0, same machine)")
+    print(f"  official MimicGen         {lo}-{hi} (its own code, Stack D0, same machine)")
     print(f"  stock / lean              {seconds['stock'] / seconds['lean']:.2f}x")
     print(f"  lean / physics floor      {seconds['lean'] / floor_s:.2f}x")
     print(f"  official / lean           {lo / (seconds['lean'] / n):.1f}-"

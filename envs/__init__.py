@@ -1,14 +1,29 @@
 """Simulator back ends behind one protocol (mimicgen_pipe.generation.Env).
 
-A back end is a package ``envs/<backend>/`` with its tasks one file each under
-``envs/<backend>/tasks/``, looked up by name. Simulator packages are imported only when an
-env is made, so ``task_spec`` and the library stay importable without them.
+A back end is a package ``envs/<backend>/``, a choice of the registry ``envs``
+(mimicgen_pipe.registry); a module here whose name starts with ``_`` is shared by back ends
+and is none. A back end's ``__init__`` imports no simulator (its other modules do, when an
+env is made) and defines
+
+- ``ROBOTS``: its arms; ``check_robot(robot)``: InputError for another, or for an arm whose
+  files are missing;
+- ``task_names()`` and ``load_task(name)``: its tasks, one file each under
+  ``envs/<backend>/tasks/`` defining ``TASK`` (with the task spec as ``TASK.spec``): the
+  choices and the modules of the registry ``envs.<backend>.tasks``;
+- ``make_env(task, robot, lean_step)``: a fresh env of the protocol (lean_step: the ManiSkill
+  back end's lean control step; a back end with one step ignores it);
+- ``source_episodes(env, num_demos, seed, from_file, work_dir)``: source demos from its
+  demonstrator or from a file format of its own (mimicgen_pipe.source_files reads robomimic
+  files on every back end);
+
+and has a module ``render.py`` whose ``Renderer(task, robot, width, height)`` draws stored
+states (mimicgen_pipe.video.make_renderer, for the render stage alone). Back ends draw the
+scenes of their reset variants with mimicgen_pipe.reset_variants.
 """
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
+import types
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,27 +31,21 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.taskspec import TaskSpec
 
-BACKENDS = ("maniskill", "pybullet")
 
-
-def _module(backend: str):
-    if backend == "maniskill":
-        from envs import maniskill
-
-        return maniskill
-    if backend == "pybullet":
-        from envs import pybullet
-
-        return pybullet
-    raise InputError(f"backend {backend!r}: unknown (known: {', '.join(BACKENDS)})")
+def backend_package(backend: str) -> types.ModuleType:
+    """The back end ``envs.<backend>``; InputError naming the back ends for another name."""
+    known = choices("envs")
+    if backend not in known:
+        raise InputError(f"backend {backend!r}: unknown (known: {', '.join(known)})")
+    return load("envs", backend)
 
 
 def task_names(backend: str) -> tuple[str, ...]:
     """The tasks ``backend`` has: the files in envs/<backend>/tasks/."""
-    tasks = _module(backend).tasks
-    return tuple(sorted(m.name for m in pkgutil.iter_modules(tasks.__path__) if not m.ispkg))
+    return backend_package(backend).task_names()
 
 
 def load_task(backend: str, name: str):
@@ -47,7 +56,7 @@ def load_task(backend: str, name: str):
         raise InputError(
             f"task {name!r}: unknown for backend {backend} (known: {', '.join(known)})"
         )
-    task = importlib.import_module(f"envs.{backend}.tasks.{name}").TASK
+    task = backend_package(backend).load_task(name)
     if task.spec.name != name:
         raise ValueError(f"envs/{backend}/tasks/{name}.py defines task {task.spec.name!r}")
     return task
@@ -78,11 +87,11 @@ def check_obs_keys(spec: TaskSpec, keys, where: str) -> None:
 
 def check_robot(backend: str, robot: str) -> None:
     """InputError for an arm ``backend`` does not have, or whose URDF files are missing."""
-    _module(backend).check_robot(robot)
+    backend_package(backend).check_robot(robot)
 
 
-def make_env(backend: str, task: str, robot: str = "panda", fast_step: bool = True):
-    """A fresh env of ``task`` on ``backend`` that implements the env protocol. fast_step
+def make_env(backend: str, task: str, robot: str = "panda", lean_step: bool = True):
+    """A fresh env of ``task`` on ``backend`` that implements the env protocol. lean_step
     (maniskill): the lean control step, the same simulation without ManiSkill's per-step
     bookkeeping (envs/maniskill/lean.py); False: ManiSkill's own ``env.step``.
 
@@ -94,24 +103,7 @@ def make_env(backend: str, task: str, robot: str = "panda", fast_step: bool = Tr
     task_spec(backend, task)
     check_robot(backend, robot)
     threadpool_limits(1, user_api="blas")
-    if backend == "maniskill":
-        return _module(backend).make_env(task, robot, fast_step)
-    return _module(backend).make_env(task, robot)
-
-
-def make_renderer(backend: str, task: str, robot: str, width: int, height: int):
-    """A renderer of stored states of ``task`` on ``backend``: ``.frame(state)`` gives an
-    (height, width, 3) uint8 RGB image on the CPU, ``.close()``. ManiSkill's renders the Panda
-    only (the arm ManiSkill's own task registers)."""
-    task_spec(backend, task)
-    check_robot(backend, robot)
-    if backend == "maniskill":
-        if robot != "panda":
-            raise InputError(f"render: robot {robot!r}: the maniskill renderer shows panda only")
-        from envs.maniskill.render import Renderer
-    else:
-        from envs.pybullet.render import Renderer
-    return Renderer(task, robot, width, height)
+    return backend_package(backend).make_env(task, robot, lean_step)
 
 
 @dataclass(frozen=True)
@@ -133,24 +125,7 @@ def source_episodes(
     work_dir: Path,
 ) -> tuple[list[SourceEpisode], int, int]:
     """Up to ``num_demos`` source demos on ``env`` from the back end's demonstrator, drawn
-    from reset seeds seed, seed + 1, ... (or ``from_file``'s: a robomimic ``.hdf5`` of this
-    back end and task, e.g. one the export stage wrote, or a file format of the back end's
-    own), how many the demonstrator dropped as failures, and how many seeds it tried (0 for
-    a file)."""
-    if from_file is not None and Path(from_file).suffix.lower() in (".hdf5", ".hdf"):
-        return _robomimic_episodes(backend, env, num_demos, from_file), 0, 0
-    return _module(backend).source_episodes(env, num_demos, seed, from_file, work_dir)
-
-
-def _robomimic_episodes(backend: str, env, num_demos: int, path: str) -> list[SourceEpisode]:
-    from mimicgen_pipe.exporters import robomimic
-
-    demos = robomimic.read(path, backend, env.spec.name)[:num_demos]
-    width = env.get_state().shape[-1]
-    for demo in demos:
-        if demo.initial_state.shape[-1] != width:
-            raise InputError(
-                f"{path}: data/{demo.name}/states has {demo.initial_state.shape[-1]} values per "
-                f"step, expected {width} (the {backend} {env.spec.name} state with {env.robot})"
-            )
-    return [SourceEpisode(d.seed, d.initial_state, d.actions) for d in demos]
+    from reset seeds seed, seed + 1, ... (or ``from_file``'s, a file format of the back
+    end's own), how many the demonstrator dropped as failures, and how many seeds it tried
+    (0 for a file)."""
+    return backend_package(backend).source_episodes(env, num_demos, seed, from_file, work_dir)

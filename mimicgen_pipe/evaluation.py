@@ -1,19 +1,26 @@
-"""Policy evaluation: rollouts from evaluation seeds that no generation attempt or source
-demo uses, run in blocks on rebuilt scenes (like generation) so results do not depend on
-the number of worker processes."""
+"""Policy evaluation: which checkpoints of a training run are rolled out (each checked
+first), and their rollouts from evaluation seeds that no generation attempt or source demo
+uses, run in blocks on rebuilt scenes (like generation) so results do not depend on the
+number of worker processes."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
+from tqdm import tqdm
 
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.generation import Env
+from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.observations import low_dim_observation
+from mimicgen_pipe.outputs import check_same_run
+from mimicgen_pipe.training import check_meta, find_checkpoints, load_checkpoint
 
 EVAL_SEED_BASE = 1 << 30  # generation and source seeds are < 2**30 (runner.attempt_seed)
 EPISODES_PER_BLOCK = 10
@@ -43,7 +50,71 @@ def evaluated_checkpoints(epochs: Sequence[int], every_epochs: int) -> list[int]
     return [i for i, e in enumerate(epochs) if e % every_epochs == 0 or i == last]
 
 
-class Policy(Protocol):
+@dataclass(frozen=True)
+class Checkpoints:
+    """The checkpoints of one training run that an evaluation rolls out: ``runs``, training
+    seed -> its checkpoints in epoch order; ``epochs``, each checkpoint's epoch;
+    ``data_run_id``, the generate run of the training data (None for source demos)."""
+
+    runs: dict[int, list[Path]]
+    epochs: dict[Path, int]
+    data_run_id: Any
+
+    @property
+    def paths(self) -> list[Path]:
+        return [c for ckpts in self.runs.values() for c in ckpts]
+
+
+def checkpoints_to_evaluate(
+    directory: Path,
+    task: str,
+    obs_dims: Mapping[str, int],
+    obs_keys: Sequence[str],
+    every_epochs: int,
+) -> Checkpoints:
+    """The checkpoints of policy directory ``directory`` that are rolled out
+    (:func:`evaluated_checkpoints`), every checkpoint there loaded and checked first: its
+    meta, its task (``task``), its observation layout (widths as the task's ``obs_dims``,
+    key -> width; keys ``obs_keys``, params' train.obs_keys) and its training run (one for
+    all). Raises InputError naming the file otherwise."""
+    runs = find_checkpoints(directory)
+    epochs: dict[Path, int] = {}
+    data_run_ids: dict[str, object] = {}
+    for ckpt in (c for ckpts in runs.values() for c in ckpts):
+        model, meta = load_checkpoint(ckpt)
+        check_meta(ckpt, meta)
+        layout = dict(zip(model.config.obs_keys, model.config.obs_dims, strict=True))
+        wrong = {k: d for k, d in layout.items() if obs_dims.get(k) != d}
+        if meta.get("task") != task or wrong:
+            raise InputError(
+                f"{ckpt}: observation layout {layout} (task {meta.get('task')!r}) does not fit "
+                f"task {task!r}, whose observations are {obs_dims}"
+            )
+        if list(model.config.obs_keys) != list(obs_keys):
+            raise InputError(
+                f"{ckpt}: trained on observation keys {list(model.config.obs_keys)}, but "
+                f"params train.obs_keys is {list(obs_keys)}"
+            )
+        epochs[ckpt] = int(meta["epoch"])
+        data_run_ids[str(ckpt)] = meta.get("data_run_id")
+    check_same_run(data_run_ids, "train")  # checkpoints of one training run only
+    try:
+        chosen = {
+            seed: [
+                ckpts[i] for i in evaluated_checkpoints([epochs[c] for c in ckpts], every_epochs)
+            ]
+            for seed, ckpts in runs.items()
+        }
+    except InputError as exc:
+        raise InputError(f"{directory}: {exc}") from None
+    return Checkpoints(chosen, epochs, next(iter(data_run_ids.values())))
+
+
+class ClosedLoopPolicy(Protocol):
+    """A policy acting in closed loop, one step at a time: ``reset(seed)`` at each episode
+    start, then ``act(obs)``, the action for the observation dict of
+    mimicgen_pipe.observations (mimicgen_pipe.policy.RolloutPolicy is one)."""
+
     def reset(self, seed: int) -> None: ...
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray: ...
 
@@ -56,7 +127,12 @@ class Rollout:
 
 
 def rollout(
-    env: Env, policy: Policy, seed: int, variant: str, horizon: int, objects: Sequence[str]
+    env: Env,
+    policy: ClosedLoopPolicy,
+    seed: int,
+    variant: str,
+    horizon: int,
+    objects: Sequence[str],
 ) -> Rollout:
     """One episode: reset the scene from ``seed``, act until the task succeeds or ``horizon``
     steps have run."""
@@ -75,7 +151,7 @@ class EvalJob:
     """Everything a worker needs: how to make its env and to load a policy by name."""
 
     make_env: Callable[[], Env]
-    load_policy: Callable[[str], Policy]
+    load_policy: Callable[[str], ClosedLoopPolicy]
     variant: str
     horizon: int
     objects: tuple[str, ...]
@@ -116,3 +192,37 @@ def run_evaluation(
         yield from results
     finally:
         results.close()
+
+
+def evaluate_checkpoints(
+    job: EvalJob,
+    checkpoints: Checkpoints,
+    seeds: Sequence[int],
+    executor: Executor,
+    label: str,
+) -> tuple[dict[int, list[tuple[int, float]]], float]:
+    """Roll out every checkpoint from every seed (:func:`run_evaluation`, each checkpoint
+    loaded by ``job.load_policy`` from its path) under a progress bar named ``label``.
+    Returns the success rates [%], training seed -> [(epoch, rate)] in epoch order, and the
+    wall time [s]; an Interrupted on the way up says how many episodes had run."""
+    names = [str(c) for c in checkpoints.paths]
+    success: dict[str, list[bool]] = {n: [] for n in names}
+    t0 = time.perf_counter()
+    bar = tqdm(total=len(names) * len(seeds), desc=label, unit="episode")
+    results = run_evaluation(job, names, seeds, executor)
+    try:
+        for ckpt, rollouts in results:
+            success[ckpt] += [r.success for r in rollouts]
+            bar.update(len(rollouts))
+    except Interrupted as exc:
+        exc.detail = f"after {bar.n} of {bar.total} episodes"
+        raise
+    finally:
+        results.close()
+        bar.close()
+    wall = time.perf_counter() - t0
+    per_run = {
+        seed: [(checkpoints.epochs[c], 100.0 * float(np.mean(success[str(c)]))) for c in ckpts]
+        for seed, ckpts in checkpoints.runs.items()
+    }
+    return per_run, wall

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -13,13 +13,14 @@ from mimicgen_pipe import poses
 from mimicgen_pipe.controller import clip_actions
 from mimicgen_pipe.observations import low_dim_observation
 from mimicgen_pipe.pose_noise import PoseNoise, generation_rng, perturb_pose
+from mimicgen_pipe.registry import load
 from mimicgen_pipe.segments import segment_bounds
 from mimicgen_pipe.taskspec import TaskSpec
 
 
 class Env(Protocol):
     """Everything the generator and the stages call on a simulator back end's env (see
-    DESIGN.md, env protocol); a back end's env implements all of it. All poses are 4x4
+    docs/extending.md, the env protocol); a back end's env implements all of it. All poses are 4x4
     homogeneous transforms in the world frame [m]."""
 
     spec: TaskSpec  # the task (envs/<backend>/tasks/<task>.py)
@@ -104,32 +105,23 @@ def pose_distance(candidates: np.ndarray, pose: np.ndarray) -> np.ndarray:
     return dpos + poses.rotation_angle(candidates[:, :3, :3], pose[:3, :3])
 
 
-SelectionStrategy = Literal["random", "nearest_neighbor"]
-
-
 def select_source(
-    strategy: SelectionStrategy,
+    strategy: str,
     candidate_object_poses: np.ndarray,
     current_object_pose: np.ndarray,
     rng: np.random.Generator,
     nn_k: int = 3,
 ) -> int:
-    """Index of the source demo to follow (paper M.3).
+    """Index of the source demo to follow (paper M.3), as selection strategy ``strategy``
+    (a module of mimicgen_pipe.selection) picks it.
 
     candidate_object_poses: (N, 4, 4) world pose of the reference object at the start of each
     source demo's segment; current_object_pose: (4, 4) in the new scene. "random" draws
     uniformly; "nearest_neighbor" ranks by :func:`pose_distance` and draws uniformly from the
     first ``nn_k``.
     """
-    n = len(candidate_object_poses)
-    if strategy == "random":
-        return int(rng.integers(n))
-    if strategy == "nearest_neighbor":
-        order = np.argsort(
-            pose_distance(candidate_object_poses, current_object_pose), kind="stable"
-        )
-        return int(order[rng.integers(min(nn_k, n))])
-    raise ValueError(f"unknown selection strategy {strategy!r}")
+    select = load("mimicgen_pipe.selection", strategy).select
+    return select(candidate_object_poses, current_object_pose, rng, nn_k)
 
 
 def add_action_noise(actions: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
@@ -141,13 +133,14 @@ def add_action_noise(actions: np.ndarray, sigma: float, rng: np.random.Generator
 
 @dataclass(frozen=True)
 class GenerationConfig:
-    """The method's knobs (paper M.6 defaults). pose_noise: the pose-estimation error on the
-    reference object's pose observed at the start of each subtask (paper T)."""
+    """The method's knobs (paper M.6 defaults). selection: a selection strategy, the name of a
+    module of mimicgen_pipe.selection. pose_noise: the pose-estimation error on the reference
+    object's pose observed at the start of each subtask (paper T)."""
 
     action_noise: float = 0.05
     n_interp: int = 5
     n_fixed: int = 0
-    selection: SelectionStrategy = "random"
+    selection: str = "random"
     nn_k: int = 3
     per_subtask: bool = False
     pose_noise: PoseNoise = PoseNoise()

@@ -68,7 +68,7 @@ def plot_file(stage: str, task: str, name: str) -> Path:
 
 def export_dir(store_name: str) -> Path:
     """The export stage's directory for a store (its name without .zarr): one file or
-    folder per format (mimicgen_pipe.exporters.FILE_NAMES)."""
+    folder per format (each exporter's FILE_NAME, mimicgen_pipe.exporters)."""
     return Path("data/export") / store_name
 
 

@@ -1,16 +1,113 @@
-"""Flat JSON metrics files, written atomically."""
+"""Flat JSON metrics files, written atomically, each saying what it measured.
+
+Every metrics file a stage writes holds its identity as top-level fields beside the values
+(:func:`metrics_identity`), so that readers such as the report select metrics by what they
+are, never by their file names:
+
+- ``stage``: the stage that wrote it (:data:`STAGES`);
+- ``task``, ``backend``: the task file and the simulator back end;
+- ``variant``: the reset variant (or object-transfer variant) measured, null where none
+  (train: a policy is trained on data, not in a variant);
+- ``robot``: the arm the stage ran (source: recorded with; generate: generated with;
+  evaluate: rolled out with; train, coverage, export, render: the arm of the data read);
+- ``data``: for train and evaluate what the policy was trained on, ``source`` (the source
+  demos) or a reset variant (that variant's generated demos); null elsewhere;
+- ``purpose``: for generate why the run was made (:data:`GENERATE_PURPOSE`): ``policy_data``
+  (generated until ``generate.num_demos`` demos were kept: a dataset policies train on) or
+  ``dgr`` (a fixed number of attempts: a measure of the data generation rate); null
+  elsewhere.
+"""
 
 from __future__ import annotations
 
 import json
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.outputs import temporary_name
+
+STAGES = ("source", "generate", "coverage", "train", "evaluate", "export", "render")
+IDENTITY_FIELDS = ("stage", "task", "backend", "variant", "robot", "data", "purpose")
+# generate.mode -> the purpose of a generate run
+GENERATE_PURPOSE = {"guarantee": "policy_data", "fixed_attempts": "dgr"}
+
+
+def metrics_identity(
+    stage: str,
+    task: str,
+    backend: str,
+    robot: str | None,
+    *,
+    variant: str | None = None,
+    data: str | None = None,
+    purpose: str | None = None,
+) -> dict[str, Any]:
+    """The identity fields of a metrics file (see the module's docstring); a stage writes
+    ``write_metrics(path, metrics_identity(...) | values)``. ``data`` is given by train and
+    evaluate only, ``purpose`` by generate only."""
+    if stage not in STAGES:
+        raise ValueError(f"stage {stage!r}: not one of {STAGES}")
+    if (data is not None) != (stage in ("train", "evaluate")):
+        raise ValueError(f"{stage}: data {data!r} (given by train and evaluate only)")
+    if (purpose is not None) != (stage == "generate"):
+        raise ValueError(f"{stage}: purpose {purpose!r} (given by generate only)")
+    if purpose not in (None, *GENERATE_PURPOSE.values()):
+        raise ValueError(f"{stage}: purpose {purpose!r} (generate only: policy_data | dgr)")
+    return {
+        "stage": stage,
+        "task": task,
+        "backend": backend,
+        "variant": variant,
+        "robot": robot,
+        "data": data,
+        "purpose": purpose,
+    }
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """One metrics file as read back: its path, identity fields and every other value."""
+
+    path: Path
+    stage: str
+    task: str
+    backend: str
+    variant: str | None
+    robot: str | None
+    data: str | None
+    purpose: str | None
+    values: Mapping[str, Any]
+
+
+def read_metrics(path: str | os.PathLike) -> Metrics:
+    """A metrics file a stage wrote; one InputError naming the file when it is not a JSON
+    object or lacks identity fields (a file written before they existed: re-run its stage)."""
+    path = Path(path)
+    try:
+        raw = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(raw, dict):
+        raise InputError(f"{path}: expected a flat JSON object")
+    missing = [k for k in IDENTITY_FIELDS if k not in raw]
+    if missing:
+        raise InputError(
+            f"{path}: identity fields missing: {', '.join(missing)} (every stage writes "
+            f"{', '.join(IDENTITY_FIELDS)}; re-run the stage that wrote it)"
+        )
+    if raw["stage"] not in STAGES or not all(isinstance(raw[k], str) for k in ("task", "backend")):
+        raise InputError(
+            f"{path}: stage {raw['stage']!r}, task {raw['task']!r}, backend "
+            f"{raw['backend']!r}: expected a stage of {', '.join(STAGES)} and names"
+        )
+    values = {k: v for k, v in raw.items() if k not in IDENTITY_FIELDS}
+    return Metrics(path, *(raw[k] for k in IDENTITY_FIELDS), values=values)
 
 
 def write_metrics(path: str | os.PathLike, metrics: Mapping[str, Any]) -> Path:

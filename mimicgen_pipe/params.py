@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.pose_noise import level_error
+from mimicgen_pipe.registry import choices
 from mimicgen_pipe.yamlfile import load_yaml
 
 
@@ -38,9 +38,10 @@ class SourceParams:
 class GenerateParams:
     """Generation knobs (paper M.6 defaults). mode "guarantee" runs until num_demos
     successes (failing loudly after max_attempts); "fixed_attempts" runs exactly
-    max_attempts attempts. executor: where attempts run, ``local`` (a pool of ``workers``
-    simulator processes here) or ``ray`` (Ray tasks; see RayParams). Neither changes the
-    data."""
+    max_attempts attempts. selection: a selection strategy of mimicgen_pipe.selection.
+    executor: where attempts run, an executor of mimicgen_pipe.executors: ``local`` (a pool
+    of ``workers`` simulator processes here) or ``ray`` (Ray tasks; see RayParams). Neither
+    workers nor executor changes the data."""
 
     variants: list[str] = field(default_factory=lambda: ["D0", "D1"])
     num_demos: int = 1000
@@ -49,12 +50,12 @@ class GenerateParams:
     action_noise: float = 0.05
     n_interp: int = 5
     n_fixed: int = 0
-    selection: Literal["random", "nearest_neighbor"] = "random"
+    selection: str = "random"
     nn_k: int = 3
     per_subtask: bool = False
     seed: int = 0
     workers: int = 2
-    executor: Literal["local", "ray"] = "local"
+    executor: str = "local"
     robot: str = "panda"
 
 
@@ -134,18 +135,16 @@ class EvaluateParams:
     every_epochs: int = 50
     seed: int = 0
     workers: int = 2
-    executor: Literal["local", "ray"] = "local"
+    executor: str = "local"
 
 
 @dataclass(frozen=True)
 class ExportParams:
-    """formats: what the export stage writes for each generated store (robomimic HDF5,
-    LeRobot dataset, ManiSkill trajectory files; mimicgen_pipe.exporters). workers: simulator
-    processes replaying episodes for the ManiSkill format."""
+    """formats: what the export stage writes for each generated store, exporters of
+    mimicgen_pipe.exporters (robomimic HDF5, LeRobot dataset, ManiSkill trajectory files).
+    workers: simulator processes replaying episodes for the ManiSkill format."""
 
-    formats: list[Literal["robomimic", "lerobot", "maniskill"]] = field(
-        default_factory=lambda: ["robomimic", "lerobot", "maniskill"]
-    )
+    formats: list[str] = field(default_factory=lambda: ["robomimic", "lerobot", "maniskill"])
     workers: int = 2
 
 
@@ -162,7 +161,7 @@ class RenderParams:
 @dataclass(frozen=True)
 class RayParams:
     """address: the Ray cluster that stages with ``executor: ray`` run on (``auto``,
-    or the GCS's ``host:port``; Ray's token authentication on, as README's *Scale-out* says);
+    or the GCS's ``host:port``; Ray's token authentication on, see docs/scale-out.md);
     null: the ``RAY_ADDRESS`` environment variable when set, else a Ray started on this
     machine (loopback only) with the stage's ``workers`` CPUs."""
 
@@ -171,21 +170,22 @@ class RayParams:
 
 @dataclass(frozen=True)
 class ManiSkillParams:
-    """fast_step: the ManiSkill back end steps with its lean control step
+    """lean_step: the ManiSkill back end steps with its lean control step
     (envs/maniskill/lean.py: the same simulation, bit for bit, without ManiSkill's per-step
     bookkeeping); false: ManiSkill's own ``env.step`` and ``evaluate()``, for checking."""
 
-    fast_step: bool = True
+    lean_step: bool = True
 
 
 @dataclass(frozen=True)
 class TransferParams:
     """The robot-transfer matrix in dvc.yaml (paper E): every task x variant x robot is
     generated from the same Panda source demos, ``attempts`` fixed attempts each, on
-    ``backend``; the other generation knobs come from ``generate``. maniskill_robots: arms
-    the main ManiSkill task is also generated with, from the main run's source demos."""
+    ``backend`` (a back end under envs/); the other generation knobs come from ``generate``.
+    maniskill_robots: arms the main ManiSkill task is also generated with, from the main
+    run's source demos."""
 
-    backend: Literal["maniskill", "pybullet"] = "pybullet"
+    backend: str = "pybullet"
     tasks: list[str] = field(default_factory=lambda: ["stack", "stack_three", "square_peg"])
     variants: list[str] = field(default_factory=lambda: ["D0", "D1"])
     robots: list[str] = field(default_factory=lambda: ["panda", "iiwa", "xarm6"])
@@ -203,7 +203,7 @@ class SuiteParams:
     object_transfer: tasks also generated on their O1 variant (paper F: another object,
     the same source demos)."""
 
-    backend: Literal["maniskill", "pybullet"] = "maniskill"
+    backend: str = "maniskill"
     tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
     variants: list[str] = field(default_factory=lambda: ["D0", "D1", "D2"])
     attempts: int = 200
@@ -213,10 +213,11 @@ class SuiteParams:
 
 @dataclass(frozen=True)
 class Params:
-    """task and backend: the main pipeline's task and simulator."""
+    """task and backend: the main pipeline's task and simulator back end (a package under
+    envs/)."""
 
     task: str = "stack_cube"
-    backend: Literal["maniskill", "pybullet"] = "maniskill"
+    backend: str = "maniskill"
     source: SourceParams = field(default_factory=SourceParams)
     generate: GenerateParams = field(default_factory=GenerateParams)
     pose_noise: PoseNoiseParams = field(default_factory=PoseNoiseParams)
@@ -299,7 +300,45 @@ def _non_empty_path(value: Any) -> str | None:
     return None
 
 
+def _one_of(known: tuple[str, ...], value: Any) -> str | None:
+    if value in known:
+        return None
+    return f"expected one of {', '.join(map(repr, known))}, got {_short(value)}"
+
+
+def _each_one_of(known: tuple[str, ...], value: Any) -> str | None:
+    bad = [v for v in value if v not in known] if isinstance(value, list) else []
+    if bad:
+        return f"expected entries among {', '.join(map(repr, known))}, got {_short(bad[0])}"
+    return None
+
+
+# Keys whose valid values are a registry's choices (mimicgen_pipe.registry): the modules of
+# its package, listed when a params file is checked.
+def _backend(value: Any) -> str | None:
+    return _one_of(choices("envs"), value)
+
+
+def _executor(value: Any) -> str | None:
+    return _one_of(choices("mimicgen_pipe.executors"), value)
+
+
+def _selection(value: Any) -> str | None:
+    return _one_of(choices("mimicgen_pipe.selection"), value)
+
+
+def _formats(value: Any) -> str | None:
+    return _non_empty_unique(value) or _each_one_of(choices("mimicgen_pipe.exporters"), value)
+
+
 _CHECKS: dict[str, Callable[[Any], str | None]] = {
+    "backend": _backend,
+    "transfer.backend": _backend,
+    "suite.backend": _backend,
+    "generate.executor": _executor,
+    "evaluate.executor": _executor,
+    "generate.selection": _selection,
+    "export.formats": _formats,
     "pose_noise.level": level_error,
     "source.from_file": _non_empty_path,
     "generate.variants": _non_empty_unique,
@@ -308,7 +347,6 @@ _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "train.cpu.seeds": _non_empty_unique,
     "train.paper.seeds": _non_empty_unique,
     "transfer.tasks": _non_empty_unique,
-    "export.formats": _non_empty_unique,
     "transfer.variants": _non_empty_unique,
     "transfer.robots": _non_empty_unique,
     "suite.tasks": _non_empty_unique,
@@ -423,8 +461,8 @@ def with_overrides(
     """``params`` with a stage's command-line choices of back end, task and generation arm
     (dvc.yaml's robot-transfer matrix runs the same stages on other tasks and arms)."""
     if backend is not None:
-        if backend not in typing.get_args(typing.get_type_hints(Params)["backend"]):
-            raise InputError(f"--backend {backend!r}: expected maniskill or pybullet")
+        if why := _backend(backend):
+            raise InputError(f"--backend: {why}")
         params = dataclasses.replace(params, backend=backend)
     if task is not None:
         params = dataclasses.replace(params, task=task)
@@ -443,12 +481,6 @@ def as_dict(params: Any) -> dict[str, Any]:
 # Keys that cannot change a stage's data (process counts), left out of what stores record and
 # of the params dvc.yaml declares for the stage, so that changing them re-runs nothing.
 _NOT_DATA = {"generate": ("workers", "executor", "variants"), "train": ("workers",)}
-
-
-def stage_executor(params: Params, stage: Literal["generate", "evaluate"]) -> Executor:
-    """Where a stage's blocks run: its ``executor`` and ``workers`` keys, and ``ray``."""
-    section = params.generate if stage == "generate" else params.evaluate
-    return Executor(section.executor, section.workers, params.ray.address)
 
 
 def training_params(train: TrainParams) -> dict[str, Any]:

@@ -1,5 +1,6 @@
 """Running many generation attempts, on any executor (mimicgen_pipe.executors): the
-generate stage's loop (``generate``), and what it writes (``episode_fields``).
+generate stage's job from params (``attempt_job``), its loop (``generate``), and what it
+writes (``generated_attrs``, ``write_generated``).
 
 Every attempt's seed is derived from (stage seed, variant, attempt index), and results are
 consumed in attempt order. A simulator carries history from one episode to the next (PhysX
@@ -10,12 +11,15 @@ worker or many, whichever worker runs a block.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import overload
+from pathlib import Path
+from typing import Any, overload
 
 import numpy as np
+from tqdm import tqdm
 
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
@@ -29,8 +33,11 @@ from mimicgen_pipe.generation import (
 )
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import generation_metrics
-from mimicgen_pipe.resume import BadBlock, WorkDir
-from mimicgen_pipe.store import EpisodeStore
+from mimicgen_pipe.outputs import run_id, store_digest
+from mimicgen_pipe.params import Params, data_params, range_error
+from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
+from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
+from mimicgen_pipe.store import EpisodeStore, read_store, write_store
 from mimicgen_pipe.taskspec import TaskSpec
 
 
@@ -79,6 +86,95 @@ class AttemptJob:
     spec: TaskSpec
     config: GenerationConfig
     variant: str
+
+
+def with_generate_options(
+    params: Params, attempts: int | None, action_noise: float | None
+) -> Params:
+    """``params`` with the generate stage's options in place of the keys they stand for:
+    ``attempts``, exactly that many attempts (generate.mode fixed_attempts, max_attempts);
+    ``action_noise``, generate.action_noise. Each is held to its key's range: InputError
+    naming the option otherwise."""
+    g = params.generate
+    for flag, key, value in (
+        ("--attempts", "generate.max_attempts", attempts),
+        ("--action-noise", "generate.action_noise", action_noise),
+    ):
+        why = range_error(key, value) if value is not None else None
+        if why:
+            raise InputError(f"{flag} {value}: {why}")
+    if attempts is not None:
+        g = dataclasses.replace(g, mode="fixed_attempts", max_attempts=attempts)
+    if action_noise is not None:
+        g = dataclasses.replace(g, action_noise=action_noise)
+    return dataclasses.replace(params, generate=g)
+
+
+def capped_action_noise(params: Params, spec: TaskSpec) -> tuple[Params, str | None]:
+    """``params`` with generate.action_noise capped at the task's max_action_noise (its task
+    file), and a line saying so (None when the noise is within it)."""
+    g = params.generate
+    sigma = spec.action_noise(g.action_noise)
+    if sigma == g.action_noise:
+        return params, None
+    note = (
+        f"action noise sigma {sigma}, not {g.action_noise}: "
+        f"{params.task}'s max_action_noise (its task file)"
+    )
+    return dataclasses.replace(params, generate=dataclasses.replace(g, action_noise=sigma)), note
+
+
+def attempt_job(
+    params: Params,
+    spec: TaskSpec,
+    variant: str,
+    parsed: Path,
+    make_env: Callable[[], Env],
+) -> tuple[AttemptJob, EpisodeStore]:
+    """The job of generating ``variant`` of task ``spec`` as ``params`` say, from the parsed
+    source demos at ``parsed`` (read whole, checked to carry the pose noise params give), on
+    envs from ``make_env``; and the parsed store."""
+    store = read_store(
+        parsed,
+        required=["target_pose", "gripper"] + [f"object_poses/{o}" for o in spec.objects],
+        task=params.task,
+        kind="parsed",
+        required_episodes=["subtask_term_index"],
+    )
+    pose_noise = pose_noise_level(params.pose_noise.level)
+    check_store_noise(store.attrs, pose_noise, params.pose_noise.seed, parsed)
+    g = params.generate
+    config = GenerationConfig(
+        g.action_noise, g.n_interp, g.n_fixed, g.selection, g.nn_k, g.per_subtask, pose_noise
+    )
+    return AttemptJob(make_env, source_demos(store, spec.objects), spec, config, variant), store
+
+
+def generation_run_id(params: Params, variant: str, store: EpisodeStore) -> str:
+    """The id of a generate run: the same for the same data-shaping params and parsed
+    ``store``, whatever the worker count, so that the stores stay byte-identical; readers
+    check that kept, failed and metrics agree."""
+    return run_id(
+        {"task": params.task, "variant": variant, "backend": params.backend}
+        | data_params(params, "generate"),
+        store_digest(store),
+    )
+
+
+def open_work_dir(out: Path, run: str, seeds: Sequence[int]) -> WorkDir:
+    """The work directory beside the output ``out`` where run ``run``'s finished blocks of
+    attempts go as they come back; a killed run started again with the same params, input
+    and code resumes there. Says what it discarded and what it resumes."""
+    work = WorkDir.open(
+        out,
+        f"{run}/{ATTEMPTS_PER_BLOCK}/{code_digest('mimicgen_pipe', 'envs')}",
+        AttemptBlockCodec(seeds),
+    )
+    for line in work.discarded:
+        print(f"generate: {line}")
+    if work.resumed:
+        print(f"generate: resuming: {len(work.resumed)} finished blocks of attempts in {work.path}")
+    return work
 
 
 BlockResult = list[tuple[int, Attempt, float]]  # a block's (seed, attempt, seconds)
@@ -242,13 +338,13 @@ def generate(
     executor: Executor,
     work: WorkDir | None = None,
     num_demos: int | None = None,
-    on_attempt: Callable[[Attempt, int, int], None] | None = None,
     robot: str = "panda",
+    label: str | None = None,
 ) -> GenerationResult:
     """Run attempts from ``seeds`` in order: all of them, or (``num_demos``, the paper's
-    guarantee mode) until ``num_demos`` have succeeded. ``on_attempt(attempt, attempts so
-    far, successes so far)`` is called after each (e.g. a progress bar). ``robot``: the arm
-    the job's env has, for the messages.
+    guarantee mode) until ``num_demos`` have succeeded. ``robot``: the arm the job's env
+    has, for the messages. ``label``: the name of a progress bar of the demos (guarantee
+    mode) or attempts, none when None.
 
     Raises RuntimeError when the first IK_ABORT_AFTER attempts all failed at IK (the arm
     cannot reach the task) or when the seeds run out before ``num_demos`` successes; an
@@ -256,6 +352,12 @@ def generate(
     kept: list[Attempt] = []
     failed: list[Attempt] = []
     rows: list[tuple[bool, int, float, bool]] = []  # success, failed subtask, seconds, IK
+    bar = tqdm(
+        total=len(seeds) if num_demos is None else num_demos,
+        desc=label,
+        unit="attempt" if num_demos is None else "demo",
+        disable=label is None,
+    )
     t0 = time.perf_counter()
     results = run_attempts(job, seeds, executor, work)
     try:
@@ -268,8 +370,8 @@ def generate(
                         f"(robot {robot!r} cannot reach the targets); nothing was written"
                     )
                 (kept if attempt.success else failed).append(attempt)
-                if on_attempt is not None:
-                    on_attempt(attempt, len(rows), len(kept))
+                bar.update(1 if (attempt.success or num_demos is None) else 0)
+                bar.set_postfix(attempts=len(rows), dgr=f"{100 * len(kept) / len(rows):.1f}%")
                 if num_demos is not None and len(kept) == num_demos:
                     break
     except Interrupted as exc:
@@ -283,6 +385,7 @@ def generate(
         raise
     finally:
         results.close()
+        bar.close()
     wall = time.perf_counter() - t0
     n = len(rows)
     if num_demos is not None and len(kept) < num_demos:
@@ -316,6 +419,38 @@ def source_demos(store: EpisodeStore, objects: tuple[str, ...]) -> SourceDemos:
         episode_ends=store.episode_ends,
         term_index=np.asarray(store.episodes["subtask_term_index"], np.int64),
     )
+
+
+def generated_attrs(
+    run: str, params: Params, variant: str, spec: TaskSpec, source_attrs: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The attributes of a generate run's kept and failed stores: run ``run`` of ``variant``
+    as ``params`` say, from source demos whose store has ``source_attrs``."""
+    return {
+        "run_id": run,
+        "task": params.task,
+        "variant": variant,
+        "backend": params.backend,
+        "robot": params.generate.robot,
+        "source_robot": source_attrs.get("robot"),
+        "control_mode": source_attrs.get("control_mode"),
+        "control_freq": source_attrs.get("control_freq"),
+        "objects": list(spec.objects),
+        "subtasks": [s.name for s in spec.subtasks],
+        "params": data_params(params, "generate"),
+    }
+
+
+def write_generated(
+    kept: Path, failed: Path, result: GenerationResult, spec: TaskSpec, attrs: Mapping[str, Any]
+) -> None:
+    """The kept store at ``kept`` and the failed store at ``failed`` of a generate run."""
+    for attempts, path, kind in (
+        (result.kept, kept, "generated"),
+        (result.failed, failed, "failed"),
+    ):
+        steps = [a.steps for a in attempts]
+        write_store(path, kind, steps, episode_fields(attempts, spec), attrs)
 
 
 def episode_fields(attempts: list[Attempt], spec: TaskSpec) -> dict[str, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Zarr v3 episode stores (DESIGN.md data contract), written atomically.
+"""Zarr v3 episode stores (docs/data-contract.md), written atomically.
 
 Layout: ``data/<key>`` (N_steps, ...) concatenated over episodes; ``meta/episode_ends``
 (N_episodes,) cumulative exclusive ends; ``meta/episodes/<key>`` (N_episodes, ...);

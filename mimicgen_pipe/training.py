@@ -1,5 +1,7 @@
 """Behavioural cloning on episode stores: dataset assembly, episode-aware sequence
-sampling, the training loop and checkpoints."""
+sampling, the training config (built from train params), the training loop, checkpoints and
+the policy directories that hold them, and the train stage's trainings of several policies
+and seeds side by side."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -18,30 +20,13 @@ from tqdm import tqdm
 
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
+from mimicgen_pipe.interrupts import Interrupted
+from mimicgen_pipe.outputs import directory_kind
+from mimicgen_pipe.params import Params, TrainParams, training_params
 from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
 from mimicgen_pipe.store import StoreView, open_store
 
 CHECKPOINT_VERSION = 1
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """One training profile. lr: Adam learning rate. epochs x steps_per_epoch gradient steps
-    on batches of batch_size windows of seq_len steps; a checkpoint every checkpoint_every
-    epochs (and at the last). val_fraction: share of episodes held out for validation."""
-
-    hidden: int
-    layers: int
-    seq_len: int
-    batch_size: int
-    lr: float
-    epochs: int
-    steps_per_epoch: int
-    checkpoint_every: int
-    val_fraction: float = 0.1
-    modes: int = 5
-    device: str = "cpu"
-    lr_schedule: str = "constant"  # or "cosine": anneal to lr / 100 over the run
 
 
 @dataclass(frozen=True)
@@ -72,6 +57,50 @@ class TrainingData:
     obs_dims: tuple[int, ...]
     action_dim: int
     attrs: Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """How one policy trains: ``policy``, the network (its architecture and observation
+    layout, as its checkpoints store it), and the schedule: Adam at ``lr``, constant or (with
+    ``lr_schedule`` "cosine") annealed to lr / 100 over the run; epochs x steps_per_epoch
+    gradient steps on batches of batch_size windows of policy.seq_len steps; a checkpoint
+    every checkpoint_every epochs (and at the last); on torch device ``device``."""
+
+    policy: PolicyConfig
+    batch_size: int
+    lr: float
+    epochs: int
+    steps_per_epoch: int
+    checkpoint_every: int
+    lr_schedule: Literal["constant", "cosine"] = "constant"
+    device: str = "cpu"
+
+
+def train_config(train: TrainParams, data: TrainingData) -> TrainConfig:
+    """The training of the active profile of ``train`` for a policy of ``data``'s
+    observation layout (train.obs_keys, in that order); device ``auto``: cuda when there is
+    one."""
+    p = train.active
+    assert train.obs_keys is not None  # stages.stage_params fills in the task's own
+    policy = PolicyConfig(
+        tuple(train.obs_keys),
+        data.obs_dims,
+        data.action_dim,
+        hidden=p.hidden,
+        layers=p.layers,
+        seq_len=p.seq_len,
+    )
+    return TrainConfig(
+        policy,
+        batch_size=p.batch_size,
+        lr=p.lr,
+        epochs=p.epochs,
+        steps_per_epoch=p.steps_per_epoch,
+        checkpoint_every=p.checkpoint_every,
+        lr_schedule=p.lr_schedule,
+        device=p.device if p.device != "auto" else default_device(),
+    )
 
 
 def load_training_data(
@@ -194,6 +223,43 @@ def validation_windows(data: SequenceData, seq_len: int, limit: int = 2000) -> n
     return window_index(data, starts, seq_len)
 
 
+# a policy directory: the checkpoints of every training seed (checkpoint_path)
+POLICY_DIR = directory_kind("policy directory", r"seed\d+/epoch\d+\.pt")
+
+
+def checkpoint_path(directory: Path, seed: int, epoch: int) -> Path:
+    """Training seed ``seed``'s checkpoint of epoch ``epoch`` in a policy directory."""
+    return directory / f"seed{seed}" / f"epoch{epoch:05d}.pt"
+
+
+def find_checkpoints(directory: Path) -> dict[int, list[Path]]:
+    """Training seed -> its checkpoints in epoch order (layout: seed<k>/epoch<NNNNN>.pt)."""
+    runs: dict[int, list[Path]] = {}
+    for run_dir in sorted(directory.glob("seed*")):
+        ckpts = sorted(run_dir.glob("epoch*.pt"))
+        if ckpts and run_dir.name[4:].isdigit():
+            runs[int(run_dir.name[4:])] = ckpts
+    if not runs:
+        raise InputError(f"{directory}: no checkpoints (expected seed<k>/epoch<N>.pt)")
+    return runs
+
+
+def check_meta(ckpt: Path, meta: dict) -> None:
+    """The meta keys an evaluation reads: ``task`` (a string) and ``epoch`` (a positive
+    integer); one line naming the file and the key otherwise."""
+    for key, kind, ok in (
+        ("task", "a task name", lambda v: isinstance(v, str)),
+        ("epoch", "a positive integer", lambda v: type(v) is int and v > 0),
+    ):
+        if key not in meta:
+            raise InputError(
+                f"{ckpt}: meta has no {key!r} (expected {kind}); not a checkpoint the train "
+                "stage wrote"
+            )
+        if not ok(meta[key]):
+            raise InputError(f"{ckpt}: meta {key!r} is {meta[key]!r}, expected {kind}")
+
+
 def save_checkpoint(path: Path, model: BCRNN, meta: dict[str, Any]) -> None:
     """Write atomically: a checkpoint file is complete or absent."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -261,20 +327,20 @@ def _one_line(exc: BaseException) -> str:
 def train_policy(
     train_data: SequenceData,
     val_data: SequenceData,
-    policy: PolicyConfig,
     config: TrainConfig,
     seed: int,
     on_checkpoint: Callable[[int, BCRNN], None],
     progress: Callable[[int, dict[str, float]], None] | None = None,
 ) -> list[dict[str, float]]:
-    """Train one BC-RNN from ``seed``. Calls ``on_checkpoint(epoch, model)`` every
-    ``checkpoint_every`` epochs and after the last. Returns one row per epoch: epoch, step,
-    loss (training NLL, mean over the epoch), val_loss (NLL on fixed validation windows;
-    NaN without validation episodes), seconds."""
+    """Train one BC-RNN (``config.policy``) from ``seed``. Calls ``on_checkpoint(epoch,
+    model)`` every ``checkpoint_every`` epochs and after the last. Returns one row per epoch:
+    epoch, step, loss (training NLL, mean over the epoch), val_loss (NLL on fixed validation
+    windows; NaN without validation episodes), seconds."""
     device = torch.device(config.device)
+    seq_len = config.policy.seq_len
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    model = BCRNN(policy)
+    model = BCRNN(config.policy)
     model.set_normalisation(train_data.obs.mean(0), train_data.obs.std(0))
     model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
@@ -286,7 +352,7 @@ def train_policy(
     )
     train_obs = torch.from_numpy(train_data.obs).to(device)
     train_actions = torch.from_numpy(train_data.actions).to(device)
-    val_idx = validation_windows(val_data, config.seq_len) if val_data.n_episodes else None
+    val_idx = validation_windows(val_data, seq_len) if val_data.n_episodes else None
     history: list[dict[str, float]] = []
     t0 = time.perf_counter()
     for epoch in range(1, config.epochs + 1):
@@ -297,7 +363,7 @@ def train_policy(
                 window_index(
                     train_data,
                     rng.integers(0, len(train_data.obs), config.batch_size),
-                    config.seq_len,
+                    seq_len,
                 )
             ).to(device)
             loss = nll_loss(model, train_obs[idx], train_actions[idx])
@@ -341,7 +407,6 @@ class TrainingRun:
 
     train_data: SequenceData
     val_data: SequenceData
-    policy: PolicyConfig
     config: TrainConfig
     seed: int
     label: str = "train"
@@ -367,7 +432,7 @@ def run_training(
 
     try:
         history = train_policy(
-            run.train_data, run.val_data, run.policy, run.config, run.seed, checkpoint, progress
+            run.train_data, run.val_data, run.config, run.seed, checkpoint, progress
         )
     finally:
         bar.close()
@@ -388,7 +453,7 @@ def run_trainings(
 
     A run's result does not depend on which process trained it or what ran beside it: every
     run seeds its own generators, and each process does the same arithmetic for a fixed
-    thread count. The models are rebuilt here around the caller's own ``run.policy``, so
+    thread count. The models are rebuilt here around the caller's own ``run.config.policy``, so
     that a checkpoint of them pickles to the same bytes whichever process trained it (pickle
     shares strings by identity, e.g. the observation keys of the config and of the meta)."""
     results = map_blocks(run_training, runs, Executor("local", workers), _set_threads, (threads,))
@@ -396,12 +461,131 @@ def run_trainings(
         for run, (history, states) in zip(runs, results, strict=True):
             models = []
             for epoch, state in states:
-                model = BCRNN(run.policy)
+                model = BCRNN(run.config.policy)
                 model.load_state_dict(state)
                 models.append((epoch, model))
             yield history, models
     finally:
         results.close()
+
+
+SPLIT_SEED = 0  # the train/validation split is the same for every training seed
+
+
+@dataclass(frozen=True)
+class PolicyTraining:
+    """One policy, trained from every training seed: ``config`` on ``data``, which is the
+    training data ``name`` ("source" or a reset variant); each of its checkpoints carries
+    ``meta`` and the checkpoint's seed, epoch and gradient step."""
+
+    name: str
+    data: TrainingData
+    config: TrainConfig
+    meta: dict[str, Any]
+
+
+def policy_training(params: Params, name: str, store: Path) -> PolicyTraining:
+    """The training that ``params`` ask for on the training data ``name`` in ``store``:
+    "source", every source demo, or a reset variant, the first train.num_demos successful
+    generated demos (:func:`load_training_data`, split with SPLIT_SEED); with the meta its
+    checkpoints carry."""
+    train, source = params.train, name == "source"
+    assert train.obs_keys is not None  # stages.stage_params fills in the task's own
+    data = load_training_data(
+        store,
+        train.obs_keys,
+        None if source else train.num_demos,
+        train.val_fraction,
+        SPLIT_SEED,
+        task=params.task,
+        kind="source" if source else "generated",
+    )
+    return PolicyTraining(
+        name,
+        data,
+        train_config(train, data),
+        {
+            "task": params.task,
+            "backend": params.backend,
+            "robot": data.attrs.get("robot"),
+            "data": name,
+            "store": str(store),
+            # the generate run whose data this is (none for source demos): the report checks it
+            "data_run_id": data.attrs.get("run_id"),
+            "control_mode": data.attrs.get("control_mode"),
+            "train_episodes": int(data.train.n_episodes),
+            "val_episodes": int(data.val.n_episodes),
+            "train_params": training_params(train),
+        },
+    )
+
+
+def train_policies(
+    trainings: Sequence[PolicyTraining],
+    directories: Sequence[Path],
+    seeds: Sequence[int],
+    workers: int,
+    threads: int,
+) -> list[list[dict[str, float]]]:
+    """Train every policy from every seed of ``seeds`` (:func:`run_trainings`: ``workers``
+    trainings side by side, ``threads`` torch threads each) and write each policy's
+    checkpoints into its policy directory of ``directories`` (:func:`checkpoint_path`).
+    Returns each policy's training curve: one row per (seed, epoch), the seed and then
+    :func:`train_policy`'s row. An Interrupted on the way up says how many trainings
+    finished."""
+    runs: list[TrainingRun] = []
+    owners: list[int] = []  # the policy each run trains
+    for k, training in enumerate(trainings):
+        data = training.data
+        for seed in seeds:
+            label = f"train {training.name} seed {seed}"
+            runs.append(TrainingRun(data.train, data.val, training.config, seed, label, len(runs)))
+            owners.append(k)
+    results = run_trainings(runs, workers, threads)
+    curves: list[list[dict[str, float]]] = [[] for _ in trainings]
+    finished = 0
+    try:
+        for k, run, (history, checkpoints) in zip(owners, runs, results, strict=True):
+            training = trainings[k]
+            for epoch, model in checkpoints:
+                step = epoch * training.config.steps_per_epoch
+                meta = {**training.meta, "seed": run.seed, "epoch": epoch, "step": step}
+                save_checkpoint(checkpoint_path(directories[k], run.seed, epoch), model, meta)
+            curves[k] += [{"seed": run.seed, **r} for r in history]
+            finished += 1
+    except Interrupted as exc:
+        exc.detail = f"with {finished} of {len(runs)} trainings finished"
+        raise
+    return curves
+
+
+def training_metrics(
+    train: TrainParams,
+    training: PolicyTraining,
+    curve: Sequence[dict[str, float]],
+    side_by_side: int,
+) -> dict[str, Any]:
+    """A policy's training metrics from its curve (:func:`train_policies`): the final
+    training and validation losses (mean over training seeds), gradient steps and wall time
+    [s] over all seeds, and how the trainings ran (torch threads, trainings side by side)."""
+    prof = train.active
+    last = [r for r in curve if r["epoch"] == prof.epochs]
+    seconds = sum(r["seconds"] for r in last)
+    steps = prof.epochs * prof.steps_per_epoch * len(prof.seeds)
+    return {
+        "profile": train.profile,
+        "seeds": len(prof.seeds),
+        "data_run_id": training.meta["data_run_id"],
+        "train_episodes": training.meta["train_episodes"],
+        "val_episodes": training.meta["val_episodes"],
+        "gradient_steps": steps,
+        "final_loss": float(np.mean([r["loss"] for r in last])),
+        "final_val_loss": float(np.mean([r["val_loss"] for r in last])),
+        "wall_seconds": seconds,
+        "seconds_per_1000_steps": 1000 * seconds / steps,
+        "torch_threads": prof.threads or torch.get_num_threads(),
+        "trainings_side_by_side": side_by_side,
+    }
 
 
 def default_device() -> str:

@@ -1,15 +1,17 @@
 """Videos of stored episodes: captions, MP4 and GIF writing, and which subtask each step is
-in. Frames are (H, W, 3) uint8 RGB, rendered by the back ends (envs.make_renderer)."""
+in. Frames are (H, W, 3) uint8 RGB, rendered by the back ends (make_renderer)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from mimicgen_pipe.segments import first_rise
+from mimicgen_pipe.store import EpisodeStore
 from mimicgen_pipe.taskspec import SubtaskSpec
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
@@ -19,6 +21,22 @@ KEPT_RGB, FAILED_RGB, TEXT_RGB, BAND_RGB = (
     (255, 255, 255),
     (25, 25, 25),
 )
+
+
+def make_renderer(backend: str, task: str, robot: str, width: int, height: int):
+    """A renderer of stored states of ``task`` on ``backend``, envs/<backend>/render.py's
+    ``Renderer``: ``.frame(state)`` gives an (height, width, 3) uint8 RGB image on the CPU,
+    ``.close()``. Imported here, by the render stage alone, so that no other stage depends
+    on a renderer."""
+    import envs
+
+    envs.task_spec(backend, task)
+    envs.check_robot(backend, robot)
+    if backend == "maniskill":
+        from envs.maniskill.render import Renderer
+    else:
+        from envs.pybullet.render import Renderer
+    return Renderer(task, robot, width, height)
 
 
 def subtask_at_steps(
@@ -36,6 +54,38 @@ def subtask_at_steps(
             break
         out[end:] = i + 1
     return out
+
+
+def episode_frames(
+    render: Callable[[np.ndarray], np.ndarray],
+    store: EpisodeStore,
+    i: int,
+    subtasks: Sequence[SubtaskSpec],
+    title: str,
+    ok: bool,
+    label: str,
+) -> list[np.ndarray]:
+    """Episode ``i`` of a generated (``ok``) or failed store, one frame per step rendered by
+    ``render`` from the step's stored env_state, captioned: ``title`` and the step, the
+    subtask the step is in (:func:`subtask_at_steps`) with that subtask's source demo, and
+    the outcome (kept, or the subtask the attempt failed in). ``label`` names the progress
+    bar of the frames."""
+    ep = store.episode(i)
+    steps = len(ep["env_state"])
+    phase = subtask_at_steps(ep, subtasks, steps)
+    source = store.episodes["source_demo"][i]
+    status = "kept (success)" if ok else "failed in subtask " + (
+        subtasks[int(store.episodes["failure_reason"][i])].name)  # fmt: skip
+    frames = []
+    for t in tqdm(range(steps), desc=label, unit="frame", leave=False):
+        k = int(phase[t])
+        lines = [
+            f"{title}  step {t}/{steps}",
+            f"subtask {k + 1}/{len(subtasks)} {subtasks[k].name}  source demo {int(source[k])}",
+            status,
+        ]
+        frames.append(caption(render(ep["env_state"][t]), lines, ok))
+    return frames
 
 
 def caption(frame: np.ndarray, lines: Sequence[str], ok: bool | None = None) -> np.ndarray:

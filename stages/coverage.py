@@ -18,7 +18,7 @@ from mimicgen_pipe.coverage import (
     write_table,
 )
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import check_same_run, claim
 from mimicgen_pipe.store import read_store
 from stages import add_generated_arguments, add_selection_arguments, stage_params
@@ -82,7 +82,12 @@ def run(args: argparse.Namespace) -> None:
         bins,
     )
     # the run measured, so that the report can check it is the run generate's metrics describe
-    write_metrics(metrics_path, {"run_id": run_ids[str(kept_path)], **metrics})
+    robot = store.attrs.get("robot")  # of the stores' one run (checked above)
+    write_metrics(
+        metrics_path,
+        metrics_identity("coverage", params.task, params.backend, robot, variant=args.variant)
+        | {"run_id": run_ids[str(kept_path)], **metrics},
+    )
     per_object = ", ".join(f"{o} {metrics[f'support_coverage_{o}']:.1f}%" for o in spec.objects)
     print(
         f"coverage: {params.task} {args.variant}: {gen_cov.episodes} generated of "

@@ -13,7 +13,7 @@ import envs
 from mimicgen_pipe import exporters, layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, free_space_error, output_set
 from mimicgen_pipe.store import read_store
 from stages import add_selection_arguments, stage_params
@@ -35,9 +35,7 @@ def run(args: argparse.Namespace) -> None:
     store_path = Path(args.store or layout.generated_store(params.task, args.variant))
     formats = args.formats.split(",") if args.formats else list(params.export.formats)
     for fmt in formats:
-        if fmt not in exporters.FORMATS:
-            known = ", ".join(exporters.FORMATS)
-            raise InputError(f"export format {fmt!r}: unknown (known: {known})")
+        exporters.exporter(fmt)  # InputError naming the formats for an unknown one
     store = read_store(store_path, kind=("source", "generated", "failed"), task=params.task)
     name = store_path.name.removesuffix(".zarr")
     out = Path(args.out or layout.export_dir(name))
@@ -48,7 +46,7 @@ def run(args: argparse.Namespace) -> None:
     )
     for fmt in formats:  # every format's check before anything is written
         exporters.check(store, fmt, info)
-    claim((out, exporters.EXPORT_DIR), metrics_path, inputs=[store_path])
+    claim((out, exporters.export_dir_kind()), metrics_path, inputs=[store_path])
     # HDF5 cannot be stopped cleanly on a full disk (it may crash the process): make sure
     # beforehand that every format's arrays fit uncompressed
     arrays = [*store.data.values(), *store.episodes.values()]
@@ -61,7 +59,7 @@ def run(args: argparse.Namespace) -> None:
         for fmt in formats:
             t0 = time.perf_counter()
             extra = (
-                _maniskill_replays(store, params.export.workers, params.maniskill.fast_step)
+                _maniskill_replays(store, params.export.workers, params.maniskill.lean_step)
                 if fmt == "maniskill"
                 else {}
             )
@@ -71,11 +69,15 @@ def run(args: argparse.Namespace) -> None:
             path = exporters.write(store, fmt, tmp_out, info, **extra)
             metrics[f"{fmt}_seconds"] = round(time.perf_counter() - t0, 2)
             print(f"export: {fmt} -> {out / path.name}")
-        write_metrics(tmp_metrics, metrics)
+        a = store.attrs
+        identity = metrics_identity(
+            "export", params.task, a["backend"], a.get("robot"), variant=a.get("variant")
+        )
+        write_metrics(tmp_metrics, identity | metrics)
     print(f"export: {store.n_episodes} episodes of {store_path} -> {out}")
 
 
-def _maniskill_replays(store, workers: int, fast_step: bool) -> dict:
+def _maniskill_replays(store, workers: int, lean_step: bool) -> dict:
     """The replays, state layout and env_info that the ManiSkill format writes."""
     from envs.maniskill import trajectory
 
@@ -86,7 +88,7 @@ def _maniskill_replays(store, workers: int, fast_step: bool) -> dict:
     episodes = [
         (ep["env_state"][0], ep["actions"]) for ep in map(store.episode, range(store.n_episodes))
     ]
-    job = trajectory.ReplayJob(store.attrs["task"], store.attrs["robot"], fast_step)
+    job = trajectory.ReplayJob(store.attrs["task"], store.attrs["robot"], lean_step)
     replays = list(
         tqdm(
             trajectory.replay_episodes(episodes, job, Executor("local", workers)),

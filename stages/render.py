@@ -7,15 +7,13 @@ import argparse
 import time
 from pathlib import Path
 
-from tqdm import tqdm
-
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import check_same_run, claim, directory_kind, output_set
 from mimicgen_pipe.store import read_store
-from mimicgen_pipe.video import caption, subtask_at_steps, write_gif, write_mp4
+from mimicgen_pipe.video import episode_frames, make_renderer, write_gif, write_mp4
 from stages import add_generated_arguments, add_selection_arguments, stage_params
 
 # what the stage writes in its media directory: videos of kept and failed attempts
@@ -48,7 +46,7 @@ def run(args: argparse.Namespace) -> None:
     check_same_run({k: s.attrs.get("run_id") for k, s in stores.items()})
     claim((out, MEDIA_DIR), metrics_path, inputs=[kept_path, failed_path])
     attrs = stores["generated"].attrs
-    renderer = envs.make_renderer(params.backend, params.task, attrs["robot"], r.width, r.height)
+    renderer = make_renderer(params.backend, params.task, attrs["robot"], r.width, r.height)
     fps = int(attrs["control_freq"])
     frames_total, seconds = 0, 0.0
     with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
@@ -56,34 +54,24 @@ def run(args: argparse.Namespace) -> None:
         for kind, store in stores.items():
             name = "kept" if kind == "generated" else "failed"
             for i in range(min(r.episodes, store.n_episodes)):
-                ep = store.episode(i)
-                steps = len(ep["env_state"])
-                phase = subtask_at_steps(ep, spec.subtasks, steps)
-                source = store.episodes["source_demo"][i]
-                ok = kind == "generated"
-                status = "kept (success)" if ok else "failed in subtask " + (
-                    spec.subtasks[int(store.episodes["failure_reason"][i])].name)  # fmt: skip
-                frames = []
                 t0 = time.perf_counter()
-                for t in tqdm(range(steps), desc=f"render: {name} {i}", unit="frame", leave=False):
-                    k = int(phase[t])
-                    lines = [
-                        f"{params.task} {args.variant} {name} #{i}  step {t}/{steps}",
-                        f"subtask {k + 1}/{len(spec.subtasks)} {spec.subtasks[k].name}"
-                        f"  source demo {int(source[k])}",
-                        status,
-                    ]
-                    frames.append(caption(renderer.frame(ep["env_state"][t]), lines, ok))
+                title = f"{params.task} {args.variant} {name} #{i}"
+                ok, label = kind == "generated", f"render: {name} {i}"
+                frames = episode_frames(renderer.frame, store, i, spec.subtasks, title, ok, label)
                 seconds += time.perf_counter() - t0
-                frames_total += steps
-                write_mp4(tmp_out / f"{name}_{i}.mp4", frames, fps)
+                frames_total += len(frames)
+                video = f"{name}_{i}.mp4"
+                write_mp4(tmp_out / video, frames, fps)
                 if i == 0:
                     write_gif(tmp_out / f"{name}_{i}.gif", frames, fps)
-                print(f"render: {name} episode {i} ({steps} frames) -> {out / f'{name}_{i}.mp4'}")
+                print(f"render: {name} episode {i} ({len(frames)} frames) -> {out / video}")
         renderer.close()
         write_metrics(
             tmp_metrics,
-            {
+            metrics_identity(
+                "render", params.task, params.backend, attrs["robot"], variant=args.variant
+            )
+            | {
                 "frames": frames_total,
                 "ms_per_frame": round(1000 * seconds / max(1, frames_total), 1),
             },

@@ -1,136 +1,109 @@
-"""report: report.md and report.html from every metric present, beside the paper's numbers."""
+"""report: report.md and report.html from the metrics present, beside the paper's numbers:
+the default pipeline's (metrics/, plots/, media/ -> report/, with summary.json, its headline
+numbers, and the figures of its policies over training) or, with --suite, the task suite's
+(suite/metrics/ -> suite/report/)."""
 
 from __future__ import annotations
 
 import argparse
-import json
+import re
 from pathlib import Path
-from typing import Any
 
 import envs
 from mimicgen_pipe import layout
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.outputs import atomic_directory, claim, directory_kind, recover_in
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.report import (
-    Run,
-    build_report,
-    check_run_ids,
-    load_paper_results,
-    render_html,
-    render_markdown,
-    suite_ablation_blocks,
-    suite_blocks,
-    suite_policy_blocks,
-    transfer_blocks,
-    transfer_table,
-    video_blocks,
+from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.outputs import atomic_directory, claim, directory_kind
+from mimicgen_pipe.report import build_report, build_suite_report
+from mimicgen_pipe.report.blocks import render_html, render_markdown
+from mimicgen_pipe.report.curves import FIGURES, draw_curves, read_curves
+from mimicgen_pipe.report.inputs import (
+    link,
+    read_heatmaps,
+    read_media,
+    read_metrics_folder,
+    read_runs,
 )
+from mimicgen_pipe.report.paper import load_paper_results
+from mimicgen_pipe.report.summary import SUMMARY, headline_numbers
 from stages import add_selection_arguments, stage_params
 
-# the report and the heat maps copied beside it
-REPORT_DIR = directory_kind("report directory", r"report\.(md|html)|[^/]+\.png")
+REPORT_FILES = ("report.md", "report.html", SUMMARY, *FIGURES)
+# what the stage writes; heat-map copies (coverage_*.png) in a report folder are replaced
+# with it, not refused
+REPORT_DIR = directory_kind(
+    "report directory", "|".join(map(re.escape, REPORT_FILES)) + r"|coverage_[^/]+\.png"
+)
+SUITE = Path("suite")  # the task suite's metrics/ and report/ (suite/dvc.yaml)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_selection_arguments(p)
-    p.add_argument("--metrics", default="metrics", help="metrics folder (default: metrics)")
+    p.add_argument(
+        "--suite",
+        action="store_true",
+        help="the task suite's report (params suite.*: DGR, object transfer, policies, "
+        "ablations) instead of the default pipeline's",
+    )
+    p.add_argument("--metrics", help="metrics folder (default: metrics, or suite/metrics)")
     p.add_argument(
         "--ablations",
         help="saved ablation runs, one folder each with params.yaml and metrics JSON files "
-        "(default: metrics/ablations)",
+        "(default: <metrics>/ablations; with --suite one folder of runs per task in it)",
     )
-    p.add_argument("--plots", default="plots", help="folder of the heat maps (default: plots)")
+    p.add_argument(
+        "--plots",
+        default="plots",
+        help="folder of the coverage heat maps and the train and evaluate CSVs (default: "
+        "plots; the suite's report has none)",
+    )
     p.add_argument(
         "--paper",
         default="reference/paper_results.yaml",
         help="the paper's numbers (default: reference/paper_results.yaml)",
     )
-    p.add_argument("--out", help="report folder (default: report)")
-
-
-def read_metrics(folder: Path) -> dict[str, dict[str, Any]]:
-    """Every flat metrics JSON directly in ``folder``: file stem -> metrics; InputError when
-    two of them describe different generate runs (see check_run_ids)."""
-    out = {}
-    recover_in(folder)  # commits that killed runs left half done
-    for path in sorted(folder.glob("*.json")):
-        try:
-            value = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{path}: not valid JSON ({exc})") from exc
-        if not isinstance(value, dict):
-            raise InputError(f"{path}: expected a flat JSON object")
-        out[path.stem] = value
-    check_run_ids(out, folder)  # generate, coverage and training metrics of one run
-    return out
-
-
-def read_runs(folder: Path) -> list[Run]:
-    """The saved runs in ``folder``: one sub-folder each, with its params.yaml and metrics."""
-    runs = []
-    for sub in sorted(p for p in folder.glob("*") if p.is_dir()):
-        if not (sub / "params.yaml").exists():
-            raise InputError(f"{sub}: params.yaml missing (an ablation run saves its params)")
-        runs.append(Run(sub.name, load_params(sub / "params.yaml"), read_metrics(sub)))
-    return runs
+    p.add_argument("--out", help="report folder (default: report, or suite/report)")
 
 
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
-    metrics_dir = Path(args.metrics)
+    suite = args.suite
+    metrics_dir = Path(args.metrics or (SUITE / "metrics" if suite else "metrics"))
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
-    out = Path(args.out or layout.report_dir())
+    out = Path(args.out or (SUITE / "report" if suite else layout.report_dir()))
     # fails at once if another run writes the report, or if out holds anything else
-    claim((out, REPORT_DIR), inputs=[metrics_dir])
+    claim((out, REPORT_DIR), inputs=[metrics_dir, args.plots])
     paper = load_paper_results(args.paper)
-    if not metrics_dir.is_dir():
-        raise InputError(f"{metrics_dir}: metrics folder not found")
-    this_run = Run("this run", params, read_metrics(metrics_dir))
-    ablations = read_runs(ablations_dir)
-    variants = list(params.generate.variants)
-    images, heatmaps = {}, {}
-    for v in variants:
-        png = Path(args.plots) / layout.heatmap_file(params.task, v).name
-        if png.exists():
-            images[png.name], heatmaps[v] = png.read_bytes(), png.name
-    spec = envs.task_spec(params.backend, params.task)
-    blocks = build_report(
-        params.task, spec.paper_task, variants, this_run, ablations, paper, heatmaps
-    )
-    t, m = params.transfer, this_run.metrics
-    blocks += transfer_blocks(
-        [
-            transfer_table(t.tasks, t.variants, t.robots, m),
-            transfer_table([params.task], variants, ["panda", *t.maniskill_robots], m),
-        ]
-    )
-    u = params.suite
-    specs = [envs.task_spec(u.backend, task) for task in u.tasks]
-    # O1 rows for the tasks generated on their object-transfer variant (the others lack it)
-    variants_shown = [*u.variants, *(["O1"] if u.object_transfer else [])]
-    blocks += suite_blocks(specs, variants_shown, this_run.metrics, paper, u.action_noise)
-    blocks += suite_policy_blocks(specs, this_run.metrics, paper)
-    # ablation runs on suite tasks: metrics/suite_ablations/<task>/<run>/
-    for task in u.tasks:
-        runs = read_runs(metrics_dir / "suite_ablations" / task)
-        if runs:
-            blocks += suite_ablation_blocks(envs.task_spec(u.backend, task), runs, paper)
-    media = {}
-    for v in variants:
-        folder = layout.media_dir(params.task, v)
-        if folder.is_dir():
-            metrics = this_run.metrics.get(layout.metrics_file("render", params.task, v).stem, {})
-            media[v] = {"files": {p.name for p in folder.iterdir()}, **metrics}
-    # the report's folder refers to the videos where the render stage keeps them
-    blocks += video_blocks(params.task, variants, media, f"../{layout.MEDIA}")
+    ms = read_metrics_folder(metrics_dir)
+    images: dict[str, bytes] = {}  # image path in the report -> PNG bytes embedded in the HTML
+    figures: dict[str, bytes] = {}  # figure file written beside the report -> PNG bytes
+    summary: dict[str, float] | None = None  # the default pipeline's headline numbers
+    if suite:
+        u = params.suite
+        specs = [envs.task_spec(u.backend, task) for task in u.tasks]
+        ablations = {task: read_runs(ablations_dir / task) for task in u.tasks}
+        blocks = build_suite_report(params, specs, ms, ablations, paper)
+        title, runs = "MimicGen task suite", sum(len(r) for r in ablations.values())
+    else:
+        variants = params.generate.variants
+        heatmaps = read_heatmaps(args.plots, params.task, variants)
+        # referred to where the coverage stage writes them, embedded in the HTML
+        names = {v: link(png, out) for v, png in heatmaps.items()}
+        figures = draw_curves(params.task, *read_curves(ms, params, args.plots))
+        images = {names[v]: png.read_bytes() for v, png in heatmaps.items()} | figures
+        media = read_media(ms, params.task, params.backend, variants)
+        spec = envs.task_spec(params.backend, params.task)
+        ablations_run = read_runs(ablations_dir)
+        blocks = build_report(params, spec, ms, ablations_run, paper, names, media, list(figures))
+        summary = headline_numbers(params, ms)
+        title, runs = f"MimicGen on {params.task}", len(ablations_run)
     with atomic_directory(out) as tmp:
-        # the heat maps are copied beside report.md so that the folder stands on its own
         (tmp / "report.md").write_text(render_markdown(blocks))
-        (tmp / "report.html").write_text(render_html(blocks, images, f"MimicGen on {params.task}"))
-        for name, data in images.items():
+        (tmp / "report.html").write_text(render_html(blocks, images, title))
+        for name, data in figures.items():
             (tmp / name).write_bytes(data)
+        if summary is not None:
+            write_metrics(tmp / SUMMARY, summary)
     print(
-        f"report: {len(this_run.metrics)} metrics files, {len(ablations)} ablation runs, "
-        f"{len(images)} heat maps -> {out}/report.md, {out}/report.html"
+        f"report: {len(ms.files)} metrics files, {runs} ablation runs, "
+        f"{len(images) - len(figures)} heat maps, {len(figures)} figures -> {out}"
     )

@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import tempfile
+import functools
 from pathlib import Path
 
-import numpy as np
-from tqdm import tqdm
-
 import envs
-from mimicgen_pipe import layout
+from mimicgen_pipe import layout, source_files
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.generation import replay_actions
-from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set, store_kind
 from mimicgen_pipe.params import Params, data_params
+from mimicgen_pipe.recording import record_source_demos
 from stages import add_selection_arguments, stage_params
 
 
@@ -23,11 +20,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_selection_arguments(p)
     p.add_argument("--out", help="output store (default: data/source/<task>.zarr)")
     p.add_argument("--metrics", help="metrics JSON (default: metrics/source_<task>.json)")
-
-
-# the demonstrator draws seeds until num_demos demos replay to success, at most this many
-# seeds per demo asked for (plug_charger, the hardest planner here, needs about 4.5)
-SEEDS_PER_DEMO = 20
 
 
 def check_source_file(params: Params, params_path: str) -> int:
@@ -38,10 +30,8 @@ def check_source_file(params: Params, params_path: str) -> int:
     fewer episodes than source.num_demos (of which the first num_demos are used)."""
     p = params.source
     assert p.from_file is not None
-    if Path(p.from_file).suffix.lower() in (".hdf5", ".hdf"):
-        from mimicgen_pipe.exporters import robomimic
-
-        n = len(robomimic.read(p.from_file, params.backend, params.task))
+    if source_files.is_robomimic_file(p.from_file):
+        n = len(source_files.robomimic_demos(p.from_file, params.backend, params.task))
     elif params.backend == "maniskill":
         from envs.maniskill.source import read_trajectory_file
 
@@ -72,47 +62,10 @@ def run(args: argparse.Namespace) -> None:
     given = [p.from_file, str(Path(p.from_file).with_suffix(".json"))] if p.from_file else []
     # fails at once if another run writes them, or if they would replace anything else
     claim((out, store_kind("source")), metrics_path, inputs=given)
-    env = envs.make_env(params.backend, params.task, p.robot, params.maniskill.fast_step)
-    kept, seeds, init_poses = [], [], []
-    demonstrator_failures = replay_failures = seeds_tried = 0
+    env = envs.make_env(params.backend, params.task, p.robot, params.maniskill.lean_step)
     print(f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)")
-    # demos that fail on replay are replaced by more from the demonstrator's next seeds
-    while seeds_tried < SEEDS_PER_DEMO * p.num_demos:
-        # beside the output, named as its temporaries, so that the next run removes it if
-        # this one is killed before it can
-        with tempfile.TemporaryDirectory(prefix=f".{out.name}.tmp-", dir=out.parent) as tmp:
-            episodes, failures, tried = envs.source_episodes(
-                params.backend,
-                env,
-                p.num_demos - len(kept),
-                p.seed + seeds_tried,
-                p.from_file,
-                Path(tmp),
-            )
-        demonstrator_failures += failures
-        seeds_tried += tried
-        for ep in tqdm(episodes, desc="source: replaying demos", unit="demo"):
-            env.set_state(ep.initial_state)
-            obj = env.object_poses()
-            steps, success = replay_actions(env, ep.initial_state, ep.actions, spec.objects)
-            if not success:
-                replay_failures += 1
-                continue
-            kept.append(steps)
-            seeds.append(ep.seed)
-            init_poses.append(np.stack([obj[o] for o in spec.objects]))
-        if len(kept) == p.num_demos or tried == 0:  # done, or a file: nothing more to draw
-            break
-    if not kept:
-        raise InputError(f"{p.from_file or params.task}: no source demo succeeded when replayed")
-    if len(kept) < p.num_demos and p.from_file is None:
-        raise InputError(
-            f"{params.task}: the demonstrator gave {len(kept)} of source.num_demos = "
-            f"{p.num_demos} demos that succeed on replay in {seeds_tried} seeds from "
-            f"source.seed = {p.seed} ({demonstrator_failures} seeds without a usable demo, "
-            f"{replay_failures} demos failed on replay); ask for fewer demos or look at the "
-            "demonstrator"
-        )
+    draw = functools.partial(source_files.source_episodes, params.backend, env)
+    demos = record_source_demos(env, spec.objects, draw, p, params.task, out)
     from mimicgen_pipe.store import write_store
 
     # store and metrics written aside, then renamed together (the store last)
@@ -120,12 +73,8 @@ def run(args: argparse.Namespace) -> None:
         write_store(
             tmp_out,
             "source",
-            kept,
-            {
-                "seed": np.asarray(seeds, np.int64),
-                "success": np.ones(len(kept), bool),
-                "initial_object_poses": np.stack(init_poses),
-            },
+            demos.steps,
+            demos.episode_fields(),
             {
                 "task": params.task,
                 "variant": "D0",
@@ -140,15 +89,10 @@ def run(args: argparse.Namespace) -> None:
         )
         write_metrics(
             tmp_metrics,
-            {
-                "demos": len(kept),
-                "dropped_planner": int(demonstrator_failures),
-                "dropped_replay": int(replay_failures),
-                "mean_length": float(np.mean([len(s["actions"]) for s in kept])),
-                "demonstrator_seeds": int(seeds_tried),
-            },
+            metrics_identity("source", params.task, params.backend, p.robot, variant="D0")
+            | demos.metrics(),
         )
     print(
-        f"source: {len(kept)} demos -> {out} ({demonstrator_failures} demonstrator and "
-        f"{replay_failures} replay failures dropped)"
+        f"source: {len(demos.steps)} demos -> {out} ({demos.demonstrator_failures} demonstrator "
+        f"and {demos.replay_failures} replay failures dropped)"
     )

@@ -10,32 +10,14 @@ import csv
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-import torch
-
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.interrupts import Interrupted
-from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.outputs import claim, directory_kind, output_set
-from mimicgen_pipe.params import Params, training_params
-from mimicgen_pipe.policy import PolicyConfig
-from mimicgen_pipe.training import (
-    TrainConfig,
-    TrainingRun,
-    default_device,
-    load_training_data,
-    run_trainings,
-    save_checkpoint,
-)
+from mimicgen_pipe.metrics import metrics_identity, write_metrics
+from mimicgen_pipe.outputs import claim, output_set
+from mimicgen_pipe.params import Params
+from mimicgen_pipe.training import POLICY_DIR, policy_training, train_policies, training_metrics
 from stages import add_selection_arguments, stage_params
-
-SPLIT_SEED = 0  # the train/validation split is the same for every training seed
-
-
-# a policy directory: the checkpoints of every training seed
-POLICY_DIR = directory_kind("policy directory", r"seed\d+/epoch\d+\.pt")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -53,15 +35,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="store to train on, one per --data (default: from --data, see layout)",
     )
     p.add_argument(
-        "--out", help="checkpoint directory, one --data only (default: data/policies/<task>_<data>)"
+        "--out",
+        nargs="+",
+        help="checkpoint directory, one per --data (default: data/policies/<task>_<data>)",
     )
     p.add_argument(
         "--metrics",
-        help="metrics JSON, one --data only (default: metrics/train_<task>_<data>.json)",
+        nargs="+",
+        help="metrics JSON, one per --data (default: metrics/train_<task>_<data>.json)",
     )
     p.add_argument(
         "--plot",
-        help="training curve CSV, one --data only (default: plots/train_<task>_<data>.csv)",
+        nargs="+",
+        help="training curve CSV, one per --data (default: plots/train_<task>_<data>.csv)",
     )
 
 
@@ -74,7 +60,7 @@ def write_curve(path: Path, rows: list[dict]) -> None:
 
 
 @dataclass(frozen=True)
-class Policy:
+class PolicyToTrain:
     """One policy this stage trains: on ``data`` read from ``store``, written to ``out``
     (checkpoints), ``metrics`` and ``plot`` (training curve)."""
 
@@ -85,32 +71,31 @@ class Policy:
     plot: Path
 
 
-def policies(args: argparse.Namespace, params: Params) -> list[Policy]:
+def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
     """The policies the command line asks for, checked before any work."""
     data: list[str] = args.data
     if len(set(data)) != len(data):
         raise InputError(f"--data {' '.join(data)}: each dataset at most once")
-    if args.store is not None and len(args.store) != len(data):
-        raise InputError(
-            f"--store: expected one store per --data ({len(data)}), got {len(args.store)}"
-        )
-    named = [f"--{k}" for k in ("out", "metrics", "plot") if getattr(args, k) is not None]
-    if named and len(data) > 1:
-        raise InputError(f"{', '.join(named)}: name one training's outputs, give one --data")
+    for key in ("store", "out", "metrics", "plot"):
+        given = getattr(args, key)
+        if given is not None and len(given) != len(data):
+            raise InputError(
+                f"--{key}: expected one path per --data ({len(data)}), got {len(given)}"
+            )
     spec = envs.task_spec(params.backend, params.task)
     for d in data:
         if d != "source":
             envs.check_variant(spec, d)
-    stores = args.store or [layout.training_store(params.task, d) for d in data]
+    t = params.task
     return [
-        Policy(
+        PolicyToTrain(
             d,
-            Path(store),
-            Path(args.out or layout.policy_dir(params.task, d)),
-            Path(args.metrics or layout.metrics_file("train", params.task, d)),
-            Path(args.plot or layout.plot_file("train", params.task, d)),
+            Path(args.store[i] if args.store else layout.training_store(t, d)),
+            Path(args.out[i] if args.out else layout.policy_dir(t, d)),
+            Path(args.metrics[i] if args.metrics else layout.metrics_file("train", t, d)),
+            Path(args.plot[i] if args.plot else layout.plot_file("train", t, d)),
         )
-        for d, store in zip(data, stores, strict=True)
+        for i, d in enumerate(data)
     ]
 
 
@@ -126,111 +111,26 @@ def run(args: argparse.Namespace) -> None:
         inputs=[p.store for p in todo],
     )
     # only the arrays and episodes the trainings use are read, each store checked first
-    datasets = [
-        load_training_data(
-            p.store,
-            t.obs_keys,
-            None if p.data == "source" else t.num_demos,
-            t.val_fraction,
-            SPLIT_SEED,
-            task=params.task,
-            kind="source" if p.data == "source" else "generated",
-        )
-        for p in todo
-    ]
-    config = TrainConfig(
-        prof.hidden,
-        prof.layers,
-        prof.seq_len,
-        prof.batch_size,
-        prof.lr,
-        prof.epochs,
-        prof.steps_per_epoch,
-        prof.checkpoint_every,
-        t.val_fraction,
-        device=prof.device if prof.device != "auto" else default_device(),
-        lr_schedule=prof.lr_schedule,
-    )
-    runs: list[TrainingRun] = []
-    owners: list[int] = []  # the policy each run trains
-    metas: list[dict] = []
-    for k, (p, data) in enumerate(zip(todo, datasets, strict=True)):
-        train_data, val_data = data.train, data.val
-        policy = PolicyConfig(
-            tuple(t.obs_keys),
-            data.obs_dims,
-            data.action_dim,
-            hidden=prof.hidden,
-            layers=prof.layers,
-            seq_len=prof.seq_len,
-        )
-        for seed in prof.seeds:
-            label = f"train {p.data} seed {seed}"
-            runs.append(TrainingRun(train_data, val_data, policy, config, seed, label, len(runs)))
-            owners.append(k)
-        metas.append(
-            {
-                "task": params.task,
-                "backend": params.backend,
-                "robot": data.attrs.get("robot"),
-                "data": p.data,
-                "store": str(p.store),
-                # the generate run whose data this is (none for source demos): the report
-                # checks it
-                "data_run_id": data.attrs.get("run_id"),
-                "control_mode": data.attrs.get("control_mode"),
-                "train_episodes": int(train_data.n_episodes),
-                "val_episodes": int(val_data.n_episodes),
-                "train_params": training_params(t),
-            }
-        )
-    side_by_side = min(t.workers, len(runs))
+    trainings = [policy_training(params, p.data, p.store) for p in todo]
+    side_by_side = min(t.workers, len(todo) * len(prof.seeds))
     # every policy's checkpoints, curve and metrics are written aside and renamed together
     # when all have trained, checkpoints last
     outputs = [p.plot for p in todo] + [p.metrics for p in todo] + [p.out for p in todo]
     with output_set(*outputs) as tmps:
         n = len(todo)
         tmp_plots, tmp_metrics, tmp_outs = tmps[:n], tmps[n : 2 * n], tmps[2 * n :]
-        results = run_trainings(runs, side_by_side, prof.threads)
-        curves: list[list[dict]] = [[] for _ in todo]  # one row per (seed, epoch)
-        finished = 0
-        try:
-            for k, run_, (history, checkpoints) in zip(owners, runs, results, strict=True):
-                for epoch, model in checkpoints:
-                    step = epoch * prof.steps_per_epoch
-                    meta = {**metas[k], "seed": run_.seed, "epoch": epoch, "step": step}
-                    save_checkpoint(
-                        tmp_outs[k] / f"seed{run_.seed}" / f"epoch{epoch:05d}.pt", model, meta
-                    )
-                curves[k] += [{"seed": run_.seed, **r} for r in history]
-                finished += 1
-        except Interrupted as exc:
-            exc.detail = f"with {finished} of {len(runs)} trainings finished"
-            raise
-        for i, (p, meta, rows) in enumerate(zip(todo, metas, curves, strict=True)):
+        curves = train_policies(trainings, tmp_outs, prof.seeds, side_by_side, prof.threads)
+        for i, (p, training, rows) in enumerate(zip(todo, trainings, curves, strict=True)):
             write_curve(tmp_plots[i], rows)
-            last = [r for r in rows if r["epoch"] == prof.epochs]
-            seconds = sum(r["seconds"] for r in last)
-            steps = prof.epochs * prof.steps_per_epoch * len(prof.seeds)
+            meta = training.meta
+            metrics = training_metrics(t, training, rows, side_by_side)
             write_metrics(
                 tmp_metrics[i],
-                {
-                    "profile": t.profile,
-                    "seeds": len(prof.seeds),
-                    "data_run_id": meta["data_run_id"],
-                    "train_episodes": meta["train_episodes"],
-                    "val_episodes": meta["val_episodes"],
-                    "gradient_steps": steps,
-                    "final_loss": float(np.mean([r["loss"] for r in last])),
-                    "final_val_loss": float(np.mean([r["val_loss"] for r in last])),
-                    "wall_seconds": seconds,
-                    "seconds_per_1000_steps": 1000 * seconds / steps,
-                    "torch_threads": prof.threads or torch.get_num_threads(),
-                    "trainings_side_by_side": side_by_side,
-                },
+                metrics_identity("train", params.task, params.backend, meta["robot"], data=p.data)
+                | metrics,
             )
             episodes = meta["train_episodes"] + meta["val_episodes"]
             print(
                 f"train: {len(prof.seeds)} run(s) on {episodes} episodes of {p.store}, "
-                f"{1000 * seconds / steps:.1f} s per 1000 steps -> {p.out}"
+                f"{metrics['seconds_per_1000_steps']:.1f} s per 1000 steps -> {p.out}"
             )

@@ -17,6 +17,7 @@ from mimicgen_pipe.policy import BCRNN, PolicyConfig
 from mimicgen_pipe.store import open_store, read_store, write_store
 from mimicgen_pipe.training import (
     SequenceData,
+    check_meta,
     load_checkpoint,
     load_training_data,
     save_checkpoint,
@@ -145,8 +146,6 @@ def test_evaluate_names_a_checkpoint_without_an_epoch(tmp_path):
 
 
 def test_evaluate_meta_checks():
-    from stages.evaluate import check_meta
-
     check_meta(Path("c.pt"), {"task": "stack_cube", "epoch": 2})
     with pytest.raises(InputError, match="c.pt: meta has no 'task'"):
         check_meta(Path("c.pt"), {"epoch": 2})

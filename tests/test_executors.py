@@ -304,9 +304,11 @@ def test_a_block_that_cannot_be_written_stops_the_run_in_one_line(work):
 
 
 @pytest.mark.sim
+@pytest.mark.slow
 def test_changed_params_do_not_reuse_the_blocks_of_another_run(work):
     """Blocks of a killed run with seed 3 are left in the work directory; a run with seed
-    4 replaces them and writes what a fresh seed-4 run writes."""
+    4 replaces them and writes what a fresh seed-4 run writes. (Its small form, a block of
+    another run's key discarded, is in tests/test_resume_blocks.py.)"""
     out = work / "data/reseeded/stack_D0.zarr"
     generate(work, "fresh4", "generate: {workers: 2, seed: 4}\n")
     (work / "reseeded.yaml").write_text(PARAMS + "generate: {workers: 1, seed: 3}\n")

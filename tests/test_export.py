@@ -159,7 +159,7 @@ def test_robomimic_file_reads_back_as_source_demos(tmp_path):
 @pytest.mark.parametrize(
     ("args", "expected"),
     [
-        (["--formats", "robomimic,hdf6"], "export format 'hdf6': unknown (known: robomimic"),
+        (["--formats", "robomimic,hdf6"], "export format 'hdf6': unknown (known: lerobot"),
         (
             [
                 "--formats",

@@ -21,7 +21,6 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import check_same_run, claim, lock_file, release, run_id
 from mimicgen_pipe.params import Params, data_params
-from mimicgen_pipe.report import check_run_ids
 from tests.conftest import REPO, cli
 
 PARAMS = "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"
@@ -231,35 +230,6 @@ def test_coverage_refuses_kept_and_failed_stores_of_different_runs(generated):
     assert "outputs of different generate runs" in lines[0]
     assert "data/mixed/stack_D0_failed.zarr has run id '0123456789abcdef'" in lines[0]
     assert f"data/mixed/stack_D0.zarr has run id '{gen_metrics['run_id']}'" in lines[0]
-
-
-def test_report_refuses_metrics_of_different_runs():
-    """The report puts generate, coverage, train and evaluate metrics side by side: they must
-    describe one generate run (metrics without run ids, from older runs, are not compared)."""
-    same = {
-        "generate_stack_D1": {"run_id": "a", "dgr": 50.0},
-        "coverage_stack_D1": {"run_id": "a"},
-        "train_stack_D1": {"data_run_id": "a"},
-        "evaluate_stack_D1_on_D1": {"data_run_id": "a"},
-        "train_stack_source": {"data_run_id": None},
-        "generate_stack_D0": {"run_id": "b"},
-        "coverage_stack_D0": {},
-    }
-    check_run_ids(same, "metrics")
-    for stem, key in (
-        ("coverage_stack_D1", "run_id"),
-        ("train_stack_D1", "data_run_id"),
-        ("evaluate_stack_D1_on_D1", "data_run_id"),
-    ):
-        mixed = {**same, stem: {key: "z"}}
-        with pytest.raises(InputError, match=f"metrics/{stem}.json {key} has run id 'z'"):
-            check_run_ids(mixed, "metrics")
-    # the suite's policies learn from generate_<x>_train, not from its DGR store
-    suite = {**same, "generate_stack_D1_train": {"run_id": "t"}}
-    with pytest.raises(InputError, match="generate_stack_D1_train.json run_id has run id 't'"):
-        check_run_ids(suite, "metrics")
-    suite["train_stack_D1"] = suite["evaluate_stack_D1_on_D1"] = {"data_run_id": "t"}
-    check_run_ids(suite, "metrics")
 
 
 def test_run_id_depends_on_data_shaping_params_and_input_only():

@@ -1,4 +1,4 @@
-"""The lean ManiSkill step (envs/maniskill/lean.py, ``maniskill.fast_step``) is ManiSkill's
+"""The lean ManiSkill step (envs/maniskill/lean.py, ``maniskill.lean_step``) is ManiSkill's
 ``env.step``: from the same state and the same actions, the stock step and the lean step set
 the same joint drive targets and reach the same simulation state, bit for bit, with the same
 subtask signals and success; generation on either gives the same attempts; and episodes
@@ -20,7 +20,7 @@ pytestmark = pytest.mark.sim
 def stock_and_lean():
     from envs import make_env
 
-    pair = [make_env("maniskill", "stack_cube", fast_step=fast) for fast in (False, True)]
+    pair = [make_env("maniskill", "stack_cube", lean_step=lean) for lean in (False, True)]
     yield pair
     for env in pair:
         env.close()
@@ -66,8 +66,7 @@ def test_generated_episodes_with_action_noise_step_the_same(pipeline, stock_and_
 def test_generation_makes_the_same_attempts_on_either_step(pipeline, stock_and_lean):
     import envs
     from mimicgen_pipe.generation import GenerationConfig, run_attempt
-    from mimicgen_pipe.runner import attempt_seed
-    from stages.generate import source_demos
+    from mimicgen_pipe.runner import attempt_seed, source_demos
 
     spec = envs.task_spec("maniskill", "stack_cube")
     sources = source_demos(read_store(pipeline / "data/parsed/stack_cube.zarr"), spec.objects)

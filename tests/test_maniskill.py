@@ -30,7 +30,7 @@ def test_action_to_target_matches_the_simulators_controller():
     action equals actions_to_target_poses (including the inverted rotation sign)."""
     from envs import make_env
 
-    env = make_env("maniskill", "stack_cube", fast_step=False)  # the controller's own state
+    env = make_env("maniskill", "stack_cube", lean_step=False)  # the controller's own state
     rng = np.random.default_rng(0)
     arm = env.unwrapped.agent.controller.controllers["arm"]
     env.reset(seed=3, variant="D0")

@@ -35,7 +35,22 @@ def test_defaults_are_the_papers():
     [
         ("generate: {action_noise: abc}", "generate.action_noise: expected a number"),
         ("generate: {n_interp: 2.5}", "generate.n_interp: expected an integer"),
-        ("generate: {selection: nn}", "generate.selection: expected one of"),
+        (
+            "generate: {selection: nn}",
+            "generate.selection: expected one of 'nearest_neighbor', 'random', got 'nn'",
+        ),
+        (
+            "backend: bullet\nsource: {}",
+            "backend: expected one of 'maniskill', 'pybullet', got 'bullet'",
+        ),
+        ("suite: {backend: mujoco}", "suite.backend: expected one of 'maniskill', 'pybullet'"),
+        ("generate: {executor: dask}", "generate.executor: expected one of 'local', 'ray'"),
+        (
+            "export: {formats: [robomimic, hdf6]}",
+            "export.formats: expected entries among 'lerobot', 'maniskill', 'robomimic', "
+            "got 'hdf6'",
+        ),
+        ("maniskill: {fast_step: true}", "maniskill.fast_step: unknown key (known: lean_step"),
         ("generate: {per_subtask: 1}", "generate.per_subtask: expected true/false"),
         ("generate: {nosie: 0.1}", "generate.nosie: unknown key"),
         ("generate: {action_noise: -0.1}", "generate.action_noise: expected a value in"),

@@ -68,13 +68,13 @@ def test_split_is_by_episode_and_complete():
 
 def train_toy(seed: int, epochs: int = 30) -> tuple[BCRNN, list[dict]]:
     data = toy_data()
-    cfg = TrainConfig(32, 1, 5, 32, 3e-3, epochs, 20, epochs)
-    pc = PolicyConfig(("x",), (4,), 3, hidden=32, layers=1, seq_len=5)
+    policy = PolicyConfig(("x",), (4,), 3, hidden=32, layers=1, seq_len=5)
+    cfg = TrainConfig(
+        policy, batch_size=32, lr=3e-3, epochs=epochs, steps_per_epoch=20, checkpoint_every=epochs
+    )
     saved = []
     tr, va = split_episodes(data.n_episodes, 0.2, np.random.default_rng(0))
-    hist = train_policy(
-        subset(data, tr), subset(data, va), pc, cfg, seed, lambda e, m: saved.append(m)
-    )
+    hist = train_policy(subset(data, tr), subset(data, va), cfg, seed, lambda e, m: saved.append(m))
     return saved[-1], hist
 
 

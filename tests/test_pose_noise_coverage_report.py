@@ -10,26 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import envs
 from mimicgen_pipe import poses
 from mimicgen_pipe.coverage import reset_bounds, support_coverage, uniform_coverage
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import Params, load_params
+from mimicgen_pipe.params import load_params
 from mimicgen_pipe.pose_noise import (
     PoseNoise,
     generation_rng,
     perturb_pose,
     pose_noise_level,
-)
-from mimicgen_pipe.report import (
-    Heading,
-    Image,
-    Run,
-    Table,
-    build_report,
-    load_paper_results,
-    render_html,
-    render_markdown,
 )
 from mimicgen_pipe.store import read_store
 from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
@@ -159,156 +148,6 @@ def test_reset_bounds_missing_from_the_task_spec_are_one_clear_error():
         TaskSpec("t", ("a", "b"), subtasks, {"D1": ResetVariant({"a": b})}, 10)
 
 
-# --- report -------------------------------------------------------------------------------
-
-
-def with_settings(**generate) -> Params:
-    from dataclasses import replace
-
-    p = Params()
-    level = generate.pop("level", None)
-    if level:
-        p = replace(p, pose_noise=replace(p.pose_noise, level=level))
-    return replace(p, generate=replace(p.generate, **generate))
-
-
-def gen_metrics(dgr, attempts=200):
-    return {"attempts": attempts, "successes": round(dgr * attempts / 100), "dgr": dgr}
-
-
-def test_paper_entries_are_unambiguous_for_matching():
-    paper = load_paper_results(PAPER)
-    assert envs.task_spec("maniskill", "stack_cube").paper_task == "Stack"
-    groups = {}
-    for e in paper.entries:
-        assert e.table and e.value >= 0
-        if e.settings:
-            groups.setdefault((e.table, e.task, e.variant, e.metric, e.data), []).append(e)
-    for entries in groups.values():
-        assert len({tuple(sorted(e.settings)) for e in entries}) == 1  # same keys varied
-        assert len({tuple(sorted(e.settings.items())) for e in entries}) == len(entries)
-
-
-def test_report_shows_missing_metrics_and_never_invents_rows():
-    paper = load_paper_results(PAPER)
-    run = Run("this run", Params(), {"generate_stack_cube_D1": gen_metrics(93.0, 1075)})
-    md = render_markdown(build_report("stack_cube", "Stack", ["D0", "D1"], run, [], paper, {}))
-    lines = md.splitlines()
-    d0 = next(ln for ln in lines if ln.startswith("| D0 | "))
-    d1 = next(ln for ln in lines if ln.startswith("| D1 | "))
-    assert d0.startswith("| D0 | missing | missing | missing | 94.3 (Table O.1, Stack D0)")
-    assert "| 93.0 | 90.0 (Table O.1, Stack D1)" in d1
-    assert "63.3 (Table M.2, Stack D1) [no NN + no per-subtask]" in d1  # our settings' row
-    sr = [ln for ln in lines if ln.startswith(("| source demos", "| generated "))]
-    assert len(sr) == 3 and all(ln.count("missing") == 3 for ln in sr)
-    assert "38.7 ± 4.1 (Table P.1, Stack D0)" in sr[0]
-    assert "Heat maps for D0: missing." in md and "No saved ablation runs" in md
-
-    run.metrics["evaluate_stack_cube_D1_on_D1"] = {
-        "success_rate_max": 96.0,
-        "success_rate_max_std": 1.5,
-        "success_rate_last": 90.0,
-        "success_rate_last_std": 2.0,
-        "episodes": 50,
-        "seeds": 3,
-    }
-    md = render_markdown(build_report("stack_cube", "Stack", ["D0", "D1"], run, [], paper, {}))
-    row = next(ln for ln in md.splitlines() if ln.startswith("| generated D1"))
-    assert row == (
-        "| generated D1 | D1 | 96.0 ± 1.5 | 90.0 ± 2.0 | 50 × 3 "
-        "| 100.0 ± 0.0 (Table P.1, Stack D1) |"
-    )
-
-
-def test_report_ablations_show_deltas_against_the_base_and_the_papers_direction():
-    paper = load_paper_results(PAPER)
-    stem = "generate_stack_cube_D1"
-    runs = [
-        Run("default", with_settings(), {stem: gen_metrics(90.0)}),
-        Run("action_noise_0", with_settings(action_noise=0.0), {stem: gen_metrics(95.0)}),
-        Run(
-            "nn_per_subtask",
-            with_settings(selection="nearest_neighbor", per_subtask=True),
-            {stem: gen_metrics(92.5)},
-        ),
-        Run("pose_L2", with_settings(level="L2"), {}),  # its metrics were not produced
-        Run("seed_1", with_settings(seed=1), {stem: gen_metrics(91.0)}),
-        Run("seed_2", with_settings(seed=2), {stem: gen_metrics(89.0)}),
-    ]
-    this = Run("this run", Params(), {})
-    blocks = build_report("stack_cube", "Stack", ["D1"], this, runs, paper, {})
-    tables = [b for b in blocks if isinstance(b, Table)]
-    ablation = next(t for t in tables if t.columns[0] == "run")
-    rows = {r[0]: r for r in ablation.rows}
-    assert set(rows) == {"default", "action_noise_0", "nn_per_subtask", "seed_1", "seed_2"}
-    assert rows["action_noise_0"][1] == "action_noise=0.0" and rows["action_noise_0"][5] == "+5.0"
-    assert "Square DGR 48.9 → 50.7 (+1.8, Table M.1)" in rows["action_noise_0"][8]
-    assert rows["nn_per_subtask"][5] == "+2.5"
-    assert rows["nn_per_subtask"][8].startswith("Stack DGR 63.3 → 90.0 (+26.7, Table M.2)")
-    assert rows["default"][1] == "(base)" and rows["default"][5] == ""
-    seeds = next(t for t in tables if t.columns[0] == "variant" and "seeds" in t.columns)
-    assert seeds.rows[0][1:5] == ("0, 1, 2", "90.0, 91.0, 89.0", "90.0 ± 1.0", "2.0")
-    assert "69.3 ± 0.4 (Table S.1, Stack Three D1)" in seeds.rows[0][5]
-
-
-def test_suite_ablations_compare_with_their_own_default_run():
-    """A suite task's ablations have a base of their own (here action noise 0.025, not
-    params.yaml's 0.05): deltas are against the run named default, and a folder without it
-    says so instead of comparing with the wrong base."""
-    from mimicgen_pipe.report import suite_ablation_blocks
-
-    paper = load_paper_results(PAPER)
-    spec = envs.task_spec("maniskill", "pull_cube_tool")
-    stem = "generate_pull_cube_tool_D1"
-    base, l2 = with_settings(action_noise=0.025), with_settings(action_noise=0.025, level="L2")
-    runs = [
-        Run("default", base, {stem: gen_metrics(43.5)}),
-        Run("action_noise_0", with_settings(action_noise=0.0), {stem: gen_metrics(62.0)}),
-        Run("pose_noise_L2", l2, {stem: gen_metrics(29.5)}),
-    ]
-    blocks = suite_ablation_blocks(spec, runs, paper)
-    assert blocks[0] == Heading(2, "Ablations on pull_cube_tool (Hammer Cleanup)")
-    rows = {r[0]: r for r in blocks[-1].rows}
-    assert rows["default"][1] == "(base)"
-    assert rows["action_noise_0"][1:6] == ("action_noise=0.0", "D1", "200", "62.0 ± 3.4", "+18.5")
-    assert rows["pose_noise_L2"][1] == "pose_noise.level=L2" and rows["pose_noise_L2"][5] == "-14.0"
-    lone = suite_ablation_blocks(spec, runs[1:], paper)
-    assert "missing" in lone[-1].text and "action_noise_0, pose_noise_L2" in lone[-1].text
-
-
-def test_the_suite_table_states_the_action_noise_each_task_ran_with():
-    """plug_charger caps the noise (its 0.5 mm clearance); the others run at the suite's."""
-    from mimicgen_pipe.report import suite_blocks
-
-    paper = load_paper_results(PAPER)
-    specs = [envs.task_spec("maniskill", t) for t in ("pull_cube_tool", "plug_charger")]
-    timing = {"seconds_per_attempt_mean": 0.3, "steps": 40000}
-    metrics = {
-        "generate_pull_cube_tool_D0": gen_metrics(64.0) | timing,
-        "generate_plug_charger_D0": gen_metrics(60.0) | timing,
-    }
-    table = suite_blocks(specs, ["D0"], metrics, paper, 0.025)[-1]
-    rows = {r[0]: dict(zip(table.columns, r, strict=True)) for r in table.rows}
-    assert rows["pull_cube_tool (D0)"]["σ"] == "0.025"
-    assert rows["plug_charger (D0)"]["σ"] == "0"
-    assert "78.2" in rows["plug_charger (D0)"]["paper DGR"]
-
-
-def test_html_holds_the_same_tables_and_embeds_images():
-    blocks = [Table(("a", "b"), (("1 < 2", "`x`"),)), Image("h.png", "heat map")]
-    page = render_html(blocks, {"h.png": b"\x89PNG fake"}, "t")
-    assert "<td>1 &lt; 2</td><td><code>x</code></td>" in page
-    assert 'src="data:image/png;base64,iVBORyBmYWtl"' in page
-    assert "![heat map](h.png)" in render_markdown(blocks)
-
-
-def test_a_malformed_paper_file_is_one_clear_error(tmp_path):
-    bad = tmp_path / "paper.yaml"
-    bad.write_text("entries:\n  - {table: O.1, task: Stack, variant: D0, value: 1}\n")
-    with pytest.raises(InputError, match=r"paper.yaml: entries\[0\]: 'metric' missing"):
-        load_paper_results(bad)
-
-
 # --- stages on the simulator --------------------------------------------------------------
 
 
@@ -411,27 +250,14 @@ def test_coverage_and_report_stages_on_the_pipeline(pipeline, tmp_path):
             plots=str(plots),
             paper=str(PAPER),
             out=str(out),
+            suite=False,
         )
     )
     md = (out / "report.md").read_text()
-    assert "![initial object positions, stack_cube D1](coverage_stack_cube_D1.png)" in md
-    assert (out / "coverage_stack_cube_D1.png").exists()
+    assert "![initial object positions, stack_cube D1](../plots/coverage_stack_cube_D1.png)" in md
+    assert not (out / "coverage_stack_cube_D1.png").exists()  # linked where coverage wrote it
     assert f"| D1 | 3 | {kept} / {kept + failed} | {m['support_coverage_joint']:.1f} |" in md
     assert "data:image/png;base64," in (out / "report.html").read_text()
-
-
-def test_transfer_table_reads_each_arms_metrics():
-    from mimicgen_pipe.report import transfer_table
-
-    metrics = {
-        "generate_stack_D0_panda": {"dgr": 95.0, "attempts": 200, "ik_failures": 7},
-        "generate_stack_D0_iiwa": {"dgr": 78.5, "attempts": 200, "ik_failures": 42},
-        "generate_stack_cube_D0": {"dgr": 96.2, "attempts": 1039},  # a main run, no IK check
-    }
-    table = transfer_table(["stack"], ["D0"], ["panda", "iiwa", "xarm6"], metrics)
-    assert table.rows == (("stack (D0)", "95.0 (7/200 IK)", "78.5 (42/200 IK)", "missing"),)
-    main = transfer_table(["stack_cube"], ["D0"], ["panda", "xarm6"], metrics)
-    assert main.rows == (("stack_cube (D0)", "96.2 (0/1039 IK)", "missing"),)
 
 
 def test_a_fixed_yaw_counts_as_one_bin():
@@ -451,31 +277,3 @@ def test_a_fixed_yaw_counts_as_one_bin():
     assert cov.outside == 0 and cov.joint_total == 9 * 27
     assert cov.object_coverage[0] == 100.0  # all 9 (x, y) bins hit by 200 draws
     assert cov.counts[0, :, :, 1:].sum() == 0  # yaw in its single bin
-
-
-def test_suite_policy_table_sets_source_beside_generated_and_the_paper():
-    from mimicgen_pipe.report import suite_policy_blocks
-
-    paper = load_paper_results(PAPER)
-    spec = envs.task_spec("maniskill", "place_sphere")  # stands for Pick Place
-    protocol = {"episodes": 50, "every_epochs": 50, "checkpoints": 4}
-    metrics = {
-        "evaluate_place_sphere_source_on_D0": {"success_rate_max": 6.0, "success_rate_last": 2.0},
-        "evaluate_place_sphere_D0_on_D0": {"success_rate_max": 84.0, "success_rate_last": 80.0},
-        "evaluate_place_sphere_source_on_D1": {"success_rate_max": 0.0, "success_rate_last": 0.0},
-    }
-    metrics = {k: {**m, **protocol} for k, m in metrics.items()}
-    blocks = suite_policy_blocks([spec], metrics, paper)
-    assert "50 episodes on each of 4 checkpoints per policy (every 50th epoch" in blocks[1].text
-    metrics["evaluate_place_sphere_source_on_D1"]["episodes"] = 20
-    assert "as in each evaluate metric" in suite_policy_blocks([spec], metrics, paper)[1].text
-    table = blocks[-1]
-    d0, d1 = table.rows  # D2: no metric, no row
-    assert d0 == (
-        "place_sphere (D0)", "Pick Place", "6.0 / 2.0", "84.0 / 80.0", "+78.0",
-        "source: 0.0 ± 0.0 (Table P.1, Pick Place D0); D0: 58.7 ± 7.5 (Table P.1, Pick Place D0)",
-    )  # fmt: skip
-    assert d1 == (
-        "place_sphere (D1)", "Pick Place", "0.0 / 0.0", "missing", "missing",
-        "– (none in the paper)",
-    )  # fmt: skip

@@ -12,8 +12,9 @@ import pytest
 import envs
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.observations import observation_keys
+from mimicgen_pipe.registry import choices
 
-TASKS = [(b, t) for b in envs.BACKENDS for t in envs.task_names(b)]
+TASKS = [(b, t) for b in choices("envs") for t in envs.task_names(b)]
 IDS = [f"{b}-{t}" for b, t in TASKS]
 
 
@@ -32,6 +33,10 @@ def test_spec_is_consistent(backend, task):
 
 
 def test_lookups_name_the_valid_choices():
+    with pytest.raises(
+        InputError, match=r"backend 'mujoco': unknown \(known: maniskill, pybullet\)"
+    ):
+        envs.task_spec("mujoco", "stack")
     with pytest.raises(InputError, match=r"task 'stack_sphere': unknown .*known: .*stack_cube"):
         envs.task_spec("maniskill", "stack_sphere")
     spec = envs.task_spec("maniskill", "stack_cube")
@@ -67,6 +72,9 @@ def test_env_provides_the_spec_and_samples_inside_its_variants(backend, task):
                     xy = [p[:2, 3] for p in poses.values()]
                     gaps = [np.linalg.norm(a - c) for i, a in enumerate(xy) for c in xy[i + 1 :]]
                     assert min(gaps, default=1.0) >= variant.min_distance - 1e-6
+                    base = env.controller.root_pose[:2, 3]  # the robot's base, world
+                    reach = max(np.linalg.norm(p - base) for p in xy)
+                    assert variant.max_reach is None or reach <= variant.max_reach + 1e-6
     finally:
         env.close()
 

@@ -217,8 +217,9 @@ def test_trainings_side_by_side_write_what_trainings_one_by_one_write(pipeline):
     "args, message",
     [
         (["--data", "D1", "D1"], "--data D1 D1: each dataset at most once"),
-        (["--data", "source", "D1", "--store", "a.zarr"], "--store: expected one store per --data"),
-        (["--data", "source", "D1", "--out", "x"], "--out: name one training's outputs"),
+        (["--data", "source", "D1", "--store", "a.zarr"], "--store: expected one path per --data"),
+        (["--data", "source", "D1", "--out", "x"], "--out: expected one path per --data (2)"),
+        (["--data", "source", "D1", "--metrics", "m.json"], "--metrics: expected one path"),
         (["--data", "source", "D7"], "D7"),
     ],
 )  # fmt: skip

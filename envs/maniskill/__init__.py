@@ -1,9 +1,13 @@
 """ManiSkill3 / SAPIEN back end (CPU PhysX, pd_ee_delta_pose); tasks one file each under
-envs/maniskill/tasks/."""
+envs/maniskill/tasks/. Imports no simulator: ManiSkill is imported when an env is made."""
 
-from envs.maniskill import tasks
+from __future__ import annotations
+
+from pathlib import Path
+
 from envs.maniskill.tasks import ROBOTS as PANDA_ROBOTS
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.registry import choices, load
 
 # the Panda (envs/maniskill/env.py) and the xArm6 with the Franka hand (envs/maniskill/xarm6.py)
 ROBOTS = (*PANDA_ROBOTS, "xarm6")
@@ -14,20 +18,26 @@ def check_robot(robot: str) -> None:
         raise InputError(f"robot {robot!r}: unknown for maniskill (known: {', '.join(ROBOTS)})")
 
 
-def make_env(task: str, robot: str = "panda", fast_step: bool = True):
+def task_names() -> tuple[str, ...]:
+    return choices("envs.maniskill.tasks")
+
+
+def load_task(name: str):
+    """The ManiSkillTask ``TASK`` of envs/maniskill/tasks/<name>.py."""
+    return load("envs.maniskill.tasks", name).TASK
+
+
+def make_env(task: str, robot: str = "panda", lean_step: bool = True):
     if robot == "xarm6":
         from envs.maniskill.xarm6 import XArm6ManiSkillEnv
 
-        return XArm6ManiSkillEnv(task, robot, fast_step)
+        return XArm6ManiSkillEnv(task, robot, lean_step)
     from envs.maniskill.env import ManiSkillEnv
 
-    return ManiSkillEnv(task, robot, fast_step)
+    return ManiSkillEnv(task, robot, lean_step)
 
 
-def source_episodes(env, num_demos, seed, from_file, work_dir):
+def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_dir: Path):
     from envs.maniskill import source
 
     return source.source_episodes(env, num_demos, seed, from_file, work_dir)
-
-
-__all__ = ["ROBOTS", "check_robot", "make_env", "source_episodes", "tasks"]

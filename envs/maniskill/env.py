@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
@@ -23,55 +22,27 @@ from mimicgen_pipe.controller import (  # noqa: E402
     target_poses_to_actions,
 )
 from mimicgen_pipe.errors import InputError  # noqa: E402
+from mimicgen_pipe.reset_variants import sample_planar_poses  # noqa: E402
 from mimicgen_pipe.taskspec import ResetVariant  # noqa: E402
 
 
 def draw_planar(
     variant: ResetVariant, objects: tuple[str, ...], n: int, base_xy: tuple[float, float]
-) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
-    """Planar initial poses of ``objects`` for ``n`` parallel scenes, drawn from ``variant``
-    with torch's generator (ManiSkill seeds it per episode): per object in order, (n, 2) world
-    x, y [m] uniform in its bounds, redrawn while farther than ``variant.max_reach`` from
-    ``base_xy`` or closer than ``variant.min_distance`` to an object drawn before it; then
-    per object (n,) yaw [rad] uniform in its bounds."""
-    base = torch.tensor(base_xy)
-    xys: list[torch.Tensor] = []
-    for name in objects:
-        b = variant.bounds[name]
-        lo = torch.tensor([b.x[0], b.y[0]])
-        span = torch.tensor([b.x[1] - b.x[0], b.y[1] - b.y[0]])
-
-        def reject(xy: torch.Tensor) -> torch.Tensor:
-            bad = torch.zeros(len(xy), dtype=torch.bool)
-            if variant.max_reach is not None:
-                bad |= torch.linalg.norm(xy - base, dim=1) > variant.max_reach
-            for other in xys:
-                bad |= torch.linalg.norm(xy - other, dim=1) < variant.min_distance
-            return bad
-
-        xy = lo + torch.rand(n, 2) * span
-        for _ in range(1000):  # rejection sampling; the accepted area is most of the box
-            bad = reject(xy)
-            if not bad.any():
-                break
-            xy[bad] = lo + torch.rand(int(bad.sum()), 2) * span
-        else:
-            raise RuntimeError(f"reset: no room for {name} (rejection sampling did not converge)")
-        xys.append(xy)
-    # a full turn is drawn as rand * 2 pi exactly, whatever the bounds' arithmetic gives
-    yaws = [
-        b.yaw[0] + torch.rand(n) * 2 * torch.pi * ((b.yaw[1] - b.yaw[0]) / (2 * math.pi))
-        for b in (variant.bounds[o] for o in objects)
-    ]
-    return xys, yaws
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Planar initial poses of ``objects`` for ``n`` parallel scenes drawn from ``variant``
+    (mimicgen_pipe.reset_variants.sample_planar_poses, every position then every yaw): per
+    object (n, 2) world x, y [m] and (n,) yaw [rad], float32, from torch's generator, which
+    ManiSkill seeds per episode; ``base_xy``: the robot base [m], for the reach cut."""
+    return sample_planar_poses(
+        variant, objects, base_xy, lambda shape: torch.rand(shape).numpy(), n
+    )
 
 
-def set_planar_poses(
-    actors, xys: list[torch.Tensor], yaws: list[torch.Tensor], heights: list
-) -> None:
+def set_planar_poses(actors, xys: list, yaws: list, heights: list) -> None:
     """Put each actor at its (n, 2) x, y and height [m] (a number or (n,); world), turned by
     its (n,) yaw [rad] about world z."""
     for actor, xy, yaw, z in zip(actors, xys, yaws, heights, strict=True):
+        xy, yaw = torch.as_tensor(xy), torch.as_tensor(yaw)
         xyz = torch.zeros(len(xy), 3)
         xyz[:, :2], xyz[:, 2] = xy, z
         q = torch.zeros(len(xy), 4)
@@ -146,7 +117,7 @@ _ZERO3 = np.zeros(3, np.float32)
 class ManiSkillEnv:
     """One CPU ManiSkill env (physx_cpu, no rendering, state only, pd_ee_delta_pose).
 
-    fast_step: step with the lean control step (envs/maniskill/lean.py: the same simulation,
+    lean_step: step with the lean control step (envs/maniskill/lean.py: the same simulation,
     bit for bit, without ManiSkill's per-step bookkeeping) and read the task's signals and
     success from its ``evaluate`` when asked; False: ManiSkill's own ``env.step`` and
     ``evaluate()``.
@@ -174,14 +145,14 @@ class ManiSkillEnv:
         """ManiSkill's agent uid of ``robot`` in ``task`` (the task's own for the Panda)."""
         return task.panda_uid if robot == "panda" else cls.agent_uids[robot]
 
-    def __init__(self, task: str = "stack_cube", robot: str = "panda", fast_step: bool = True):
+    def __init__(self, task: str = "stack_cube", robot: str = "panda", lean_step: bool = True):
         if robot not in self.agent_uids:
             known = ", ".join(self.agent_uids)
             raise InputError(f"robot {robot!r}: unknown for maniskill (known: {known})")
         self.task = load_task("maniskill", task)
         self.spec = self.task.spec
         self.robot = robot
-        self.fast_step = fast_step
+        self.lean_step = lean_step
         self.agent_uid = self.agent_uid_for(self.task, robot)
         self._env = gym.make(
             self.env_id_for(self.task),
@@ -278,7 +249,7 @@ class ManiSkillEnv:
         self._finger_index = [
             robot.active_joints.index(j) for j in robot.active_joints if "finger" in j.name
         ]
-        self._lean = LeanStep(u) if self.fast_step else None
+        self._lean = LeanStep(u) if self.lean_step else None
 
     def step(self, action: np.ndarray) -> None:
         if self._lean:

@@ -1,4 +1,4 @@
-"""The lean control step (``maniskill.fast_step``): what ManiSkill's ``env.step`` does to the
+"""The lean control step (``maniskill.lean_step``): what ManiSkill's ``env.step`` does to the
 simulation under ``pd_ee_delta_pose`` on the CPU, without its per-step bookkeeping.
 
 ManiSkill runs every control step through batched torch code made for thousands of GPU
@@ -148,9 +148,9 @@ class LeanStep:
             or not cfg.normalize_action
             or cfg.frame != "root_translation:root_aligned_body_rotation"
         ):
-            raise ValueError(f"fast_step: no lean step for the arm controller {arm!r}")
+            raise ValueError(f"lean_step: no lean step for the arm controller {arm!r}")
         if grip.config.use_delta or grip.config.interpolate or not grip.config.normalize_action:
-            raise ValueError(f"fast_step: no lean step for the gripper controller {grip!r}")
+            raise ValueError(f"lean_step: no lean step for the gripper controller {grip!r}")
         kin = arm.kinematics
         self._robot = env.agent.robot._objs[0]
         self._ee = arm.ee_link._objs[0]

@@ -4,16 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from mimicgen_pipe.errors import InputError
+
 # a camera that holds the whole arm and the workspace, closer than ManiSkill's default view
 EYE, TARGET, FOV = (0.3, 0.55, 0.65), (-0.3, 0.0, 0.1), 1.0
 
 
 class Renderer:
-    """Frames of flat states (ManiSkillEnv.get_state() layout) of ``task`` with ``robot``:
-    a second env of the same task, built with a renderer, that is only ever set, never
-    stepped."""
+    """Frames of flat states (ManiSkillEnv.get_state() layout) of ``task`` with ``robot`` (the
+    Panda only): a second env of the same task, built with a renderer, that is only ever set,
+    never stepped."""
 
     def __init__(self, task: str, robot: str, width: int, height: int) -> None:
+        if robot != "panda":  # the arm ManiSkill's own task registers
+            raise InputError(f"render: robot {robot!r}: the maniskill renderer shows panda only")
         import gymnasium as gym
         import torch
         from mani_skill.utils import sapien_utils

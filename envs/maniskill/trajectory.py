@@ -26,7 +26,7 @@ EPISODES_PER_BLOCK = 8  # each block replays on a freshly rebuilt scene, as gene
 class ReplayJob:
     task: str
     robot: str
-    fast_step: bool = True
+    lean_step: bool = True
 
 
 _ENV = None
@@ -36,7 +36,7 @@ def _init_worker(job: ReplayJob) -> None:
     global _ENV
     import envs
 
-    _ENV = envs.make_env("maniskill", job.task, job.robot, job.fast_step)
+    _ENV = envs.make_env("maniskill", job.task, job.robot, job.lean_step)
 
 
 def replay(env, initial_state: np.ndarray, actions: np.ndarray) -> Replayed:

@@ -30,9 +30,7 @@ from mani_skill.utils import sapien_utils  # noqa: E402
 from mani_skill.utils.registration import register_env  # noqa: E402
 
 from envs import load_task  # noqa: E402
-from envs.maniskill.env import ManiSkillEnv, variant_env_class  # noqa: E402
-from envs.maniskill.tasks import ManiSkillTask  # noqa: E402
-from envs.urdf import (  # noqa: E402
+from envs._urdf import (  # noqa: E402
     FINGER_JOINTS,
     FINGER_OPEN,
     add_fixed_joint,
@@ -40,6 +38,8 @@ from envs.urdf import (  # noqa: E402
     load_urdf,
     urdf_file,
 )
+from envs.maniskill.env import ManiSkillEnv, variant_env_class  # noqa: E402
+from envs.maniskill.tasks import ManiSkillTask  # noqa: E402
 from mimicgen_pipe.errors import InputError  # noqa: E402
 
 ROBOT = "xarm6"

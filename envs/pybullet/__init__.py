@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from envs.pybullet import tasks
 from envs.pybullet.robots import ROBOTS, robot_spec, robot_urdf_text
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.registry import choices, load
 
 
 def check_robot(robot: str) -> None:
@@ -16,7 +16,17 @@ def check_robot(robot: str) -> None:
     robot_urdf_text(robot_spec(robot))
 
 
-def make_env(task: str, robot: str = "panda"):
+def task_names() -> tuple[str, ...]:
+    return choices("envs.pybullet.tasks")
+
+
+def load_task(name: str):
+    """The PyBulletTask ``TASK`` of envs/pybullet/tasks/<name>.py."""
+    return load("envs.pybullet.tasks", name).TASK
+
+
+def make_env(task: str, robot: str = "panda", lean_step: bool = True):
+    """A PyBulletEnv; lean_step is ManiSkill's (PyBullet has one control step)."""
     from envs.pybullet.env import PyBulletEnv
 
     return PyBulletEnv(task, robot)
@@ -52,4 +62,4 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     return kept, failed, tried
 
 
-__all__ = ["ROBOTS", "check_robot", "make_env", "source_episodes", "tasks"]
+__all__ = ["ROBOTS", "check_robot", "load_task", "make_env", "source_episodes", "task_names"]

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pybullet as p
 import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
 
 from envs import load_task
+from envs._urdf import FINGER_JOINTS, FINGER_OPEN
 from envs.pybullet.robots import (
     HOME_TCP,
     TCP_LINK,
@@ -15,8 +18,7 @@ from envs.pybullet.robots import (
     robot_spec,
     robot_urdf_file,
 )
-from envs.pybullet.tasks import ROBOT_BASE_XY, sample_object_poses
-from envs.urdf import FINGER_JOINTS, FINGER_OPEN
+from envs.pybullet.tasks import ROBOT_BASE_XY
 from mimicgen_pipe import poses
 from mimicgen_pipe.controller import (
     DeltaPoseController,
@@ -25,6 +27,7 @@ from mimicgen_pipe.controller import (
     target_poses_to_actions,
 )
 from mimicgen_pipe.kinematics import inverse_kinematics
+from mimicgen_pipe.reset_variants import sample_planar_poses
 
 SIM_HZ = 240
 CONTROL_HZ = 20
@@ -154,12 +157,26 @@ class PyBulletEnv:
 
     # -- protocol -------------------------------------------------------------------------
     def reset(self, seed: int, variant: str) -> None:
+        """The home pose, fingers open, objects resting on the table where ``variant`` draws
+        them (mimicgen_pipe.reset_variants, each object's yaw right after its position) from
+        numpy's generator seeded with ``seed``."""
         rng = np.random.default_rng(seed)
-        objects = sample_object_poses(self.task, variant, rng)
+        base_xy = tuple(self.controller.root_pose[:2, 3])
+        xys, yaws = sample_planar_poses(
+            self.spec.reset_variants[variant],
+            self.spec.objects,
+            base_xy,
+            rng.random,
+            draw_order="object_by_object",
+        )
         fingers = np.full(len(FINGER_JOINTS), FINGER_OPEN)
         state = [self.home_q, fingers, np.zeros(self.chain.dof + len(fingers))]
-        for name in self.spec.objects:
-            pq = poses.pose_to_pq(objects[name])
+        for name, xy, yaw in zip(self.spec.objects, xys, yaws, strict=True):
+            pose = np.eye(4)
+            c, s = math.cos(yaw[0]), math.sin(yaw[0])
+            pose[:2, :2] = [[c, -s], [s, c]]
+            pose[:2, 3], pose[2, 3] = xy[0], self.task.shapes[name].z
+            pq = poses.pose_to_pq(pose)
             state += [pq[:3], pq[[4, 5, 6, 3]], np.zeros(6)]
         # stores keep states in float32: start from float32 values so that a stored initial
         # state is this one exactly

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.urdf import PANDA_URDF, add_fixed_joint, franka_hand, load_urdf, urdf_file
+from envs._urdf import PANDA_URDF, add_fixed_joint, franka_hand, load_urdf, urdf_file
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.kinematics import Chain
 

@@ -11,40 +11,56 @@ executor and however many workers ran it.
 With a :class:`~mimicgen_pipe.resume.WorkDir`, every finished block is saved there as it
 comes back (in whatever order), and blocks that an earlier, killed run of the same work
 finished are read back instead of run again.
+
+An executor is one module of this package, named as ``generate.executor`` and
+``evaluate.executor`` name it (mimicgen_pipe.registry), defining
+
+- ``check_settings(address) -> None``: InputError for settings it cannot run with, read from
+  the environment alone (nothing started or contacted), when the Executor is made, before
+  any work;
+- ``imap_unordered(fn, tasks, workers, initializer, initargs, address)``: (index,
+  ``fn(task)``) for each (index, task) of the iterable ``tasks``, as they finish, every
+  worker calling ``initializer(*initargs)`` once before its first block; closing the
+  iterator stops the work, its workers gone when that returns.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
+from mimicgen_pipe.registry import load
 from mimicgen_pipe.resume import WorkDir
+
+if TYPE_CHECKING:
+    from mimicgen_pipe.params import Params
 
 T = TypeVar("T")
 R = TypeVar("R")
 
-EXECUTORS = ("local", "ray")
-
 
 @dataclass(frozen=True)
 class Executor:
-    """kind: ``local`` (process pool here) or ``ray``. workers: local processes, or for Ray
-    the CPUs of the local Ray instance it starts when no cluster address is given (on a
-    cluster every CPU it offers is used). address: a Ray cluster's GCS (``auto`` or
-    ``host:port``); None uses ``RAY_ADDRESS`` when set, else starts a local Ray (loopback
-    only). A cluster is used only with Ray's token authentication on: settings that turn it
-    off are refused here, when the executor is made, before any work."""
+    """kind: an executor of this package, ``local`` (process pool here) or ``ray``. workers:
+    local processes, or for Ray the CPUs of the local Ray instance it starts when no cluster
+    address is given (on a cluster every CPU it offers is used). address: a Ray cluster's
+    GCS (``auto`` or ``host:port``); None uses ``RAY_ADDRESS`` when set, else starts a local
+    Ray (loopback only). A cluster is used only with Ray's token authentication on: settings
+    that turn it off are refused here, when the executor is made, before any work."""
 
-    kind: Literal["local", "ray"] = "local"
+    kind: str = "local"
     workers: int = 1
     address: str | None = None
 
     def __post_init__(self) -> None:
-        if self.kind == "ray":
-            from mimicgen_pipe.executors import ray  # imports no Ray: reads the environment
+        load("mimicgen_pipe.executors", self.kind).check_settings(self.address)
 
-            ray.check_settings(self.address)
+
+def stage_executor(params: Params, stage: Literal["generate", "evaluate"]) -> Executor:
+    """Where a stage's blocks run: its ``executor`` and ``workers`` keys, and ``ray``."""
+    section = params.generate if stage == "generate" else params.evaluate
+    return Executor(section.executor, section.workers, params.ray.address)
 
 
 def map_blocks(
@@ -89,14 +105,7 @@ def _unordered(
     initializer: Callable[..., None],
     initargs: tuple[Any, ...],
 ) -> Iterator[tuple[int, R]]:
-    if executor.kind == "local":
-        from mimicgen_pipe.executors import local
-
-        return local.imap_unordered(fn, tasks, executor.workers, initializer, initargs)
-    if executor.kind == "ray":
-        from mimicgen_pipe.executors import ray
-
-        return ray.imap_unordered(
-            fn, tasks, executor.workers, initializer, initargs, executor.address
-        )
-    raise ValueError(f"executor {executor.kind!r}: expected one of {EXECUTORS}")
+    module = load("mimicgen_pipe.executors", executor.kind)
+    return module.imap_unordered(
+        fn, tasks, executor.workers, initializer, initargs, executor.address
+    )

@@ -62,17 +62,23 @@ def _indexed(item: tuple[Callable[[T], R], int, T]) -> tuple[int, R]:
     return i, fn(task)
 
 
+def check_settings(address: str | None) -> None:
+    """Nothing to refuse: a local pool reads no settings (``address`` is Ray's)."""
+
+
 def imap_unordered(
     fn: Callable[[T], R],
     tasks: Iterable[tuple[int, T]],
     workers: int,
     initializer: Callable[..., None],
     initargs: tuple[Any, ...] = (),
+    address: str | None = None,
 ) -> Iterator[tuple[int, R]]:
     """(index, ``fn(task)``) for each (index, task), as they finish: in this process, in
     order, when ``workers`` <= 1 (after ``initializer(*initargs)``), else on that many
     spawned processes, each initialised once. Close the iterator (or let an exception
-    through it) to stop early: the pool is gone when that returns."""
+    through it) to stop early: the pool is gone when that returns. ``address`` is unused (a
+    Ray cluster's, for the ray executor)."""
     tasks = iter(tasks)  # read as the pool asks for them: ``tasks`` may be long and lazy
     first = list(itertools.islice(tasks, max(1, workers)))  # no more processes than tasks
     if not first:

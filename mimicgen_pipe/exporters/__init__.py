@@ -1,12 +1,21 @@
 """Exporters: a generated (or source) store in the formats people train from.
 
-One module per format, each with ``REQUIRED`` (the store's data keys it reads), ``check``
-(why a store cannot be exported, before anything is written) and ``write``:
+One module per format, named as ``export.formats`` names it (mimicgen_pipe.registry):
 
 - :mod:`.robomimic`: robomimic / MimicGen HDF5 (``data/demo_<i>``, ``mask/``, ``datagen_info``)
 - :mod:`.lerobot`: a LeRobot dataset (parquet files and ``meta/``), low-dim state and action
 - :mod:`.maniskill`: a ManiSkill trajectory (``.h5`` + ``.json``) that ManiSkill's own
   ``replay_trajectory`` replays; ManiSkill back end only
+
+Each defines
+
+- ``FILE_NAME``: the path in the export directory that ``write`` writes (a file or a folder);
+- ``WRITES``: a regular expression that every path ``write`` makes in the export directory
+  ('/'-separated, relative to it) fully matches, so that the stage recognises a directory it
+  made;
+- ``check(store, info) -> str | None``: why ``store`` cannot be exported, before anything is
+  written (:func:`missing_keys` helps), or None;
+- ``write(store, path, info, **extra) -> None``: the format at ``path``.
 
 Every format reads the same :class:`ExportInfo`, made by the export stage from the store's
 attrs and params.yaml.
@@ -14,29 +23,17 @@ attrs and params.yaml.
 
 from __future__ import annotations
 
-import re
+import types
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.outputs import directory_kind
+from mimicgen_pipe.outputs import OutputKind, directory_kind
+from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.store import EpisodeStore
 from mimicgen_pipe.taskspec import TaskSpec
-
-FORMATS = ("robomimic", "lerobot", "maniskill")
-# what each format writes inside the export directory
-FILE_NAMES = {"robomimic": "demos.hdf5", "lerobot": "lerobot", "maniskill": "trajectory.h5"}
-# an export directory holds those files (ManiSkill's .json beside its .h5) and nothing else,
-# so that the stage replaces only a directory it made
-EXPORT_DIR = directory_kind(
-    "export directory",
-    "|".join(
-        rf"{re.escape(Path(n).stem)}\.(h5|json)" if n.endswith(".h5") else rf"{re.escape(n)}(/.+)?"
-        for n in FILE_NAMES.values()
-    ),
-)
 
 
 @dataclass(frozen=True)
@@ -80,23 +77,34 @@ def export_info(
     )
 
 
-def _module(fmt: str):
-    if fmt not in FORMATS:
-        raise InputError(f"export format {fmt!r}: unknown (known: {', '.join(FORMATS)})")
-    return _FORMAT_MODULES[fmt]
+def exporter(fmt: str) -> types.ModuleType:
+    """The exporter module of format ``fmt``; InputError naming the formats for another."""
+    known = choices("mimicgen_pipe.exporters")
+    if fmt not in known:
+        raise InputError(f"export format {fmt!r}: unknown (known: {', '.join(known)})")
+    return load("mimicgen_pipe.exporters", fmt)
+
+
+def export_dir_kind() -> OutputKind:
+    """An export directory: what the formats write (each one's ``WRITES``) and nothing else,
+    so that the stage replaces only a directory it made."""
+    writes = (exporter(fmt).WRITES for fmt in choices("mimicgen_pipe.exporters"))
+    return directory_kind("export directory", "|".join(f"(?:{w})" for w in writes))
 
 
 def check(store: EpisodeStore, fmt: str, info: ExportInfo) -> None:
     """InputError naming the store, the format and what it lacks; nothing is written."""
-    why = _module(fmt).check(store, info)
+    why = exporter(fmt).check(store, info)
     if why:
         raise InputError(f"{store.path}: cannot export as {fmt}: {why}")
 
 
 def write(store: EpisodeStore, fmt: str, out_dir: Path, info: ExportInfo, **extra: Any) -> Path:
-    """Write ``store`` as ``fmt`` into ``out_dir`` (FILE_NAMES[fmt]); returns the path."""
-    path = Path(out_dir) / FILE_NAMES[fmt]
-    _module(fmt).write(store, path, info, **extra)
+    """Write ``store`` as ``fmt`` into ``out_dir`` (at the format's FILE_NAME); returns the
+    path."""
+    module = exporter(fmt)
+    path = Path(out_dir) / module.FILE_NAME
+    module.write(store, path, info, **extra)
     return path
 
 
@@ -111,9 +119,3 @@ def missing_keys(store: EpisodeStore, keys: tuple[str, ...] | list[str]) -> str 
     """'no data/<key>, ...' for the keys the store lacks, or None."""
     missing = [k for k in keys if k not in store.data]
     return f"no {', '.join('data/' + k for k in missing)}" if missing else None
-
-
-# the format modules, imported here so that every stage that exports depends on all of them
-from mimicgen_pipe.exporters import lerobot, maniskill, robomimic  # noqa: E402
-
-_FORMAT_MODULES = {"robomimic": robomimic, "lerobot": lerobot, "maniskill": maniskill}

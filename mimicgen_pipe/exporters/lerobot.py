@@ -21,6 +21,8 @@ import pyarrow.parquet as pq
 
 from mimicgen_pipe.store import EpisodeStore
 
+FILE_NAME = "lerobot"  # the dataset's folder in the export directory
+WRITES = r"lerobot(/.+)?"
 REQUIRED = ("actions",)
 CODEBASE_VERSION = "v3.0"
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"

@@ -19,6 +19,7 @@ the stored state; the seed alone gives ManiSkill's D0 scene, not ours).
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,8 +29,10 @@ import numpy as np
 
 from mimicgen_pipe.store import EpisodeStore
 
-REQUIRED = ("actions", "env_state")
+FILE_NAME = "trajectory.h5"  # and its .json, and the pd_joint_pos copy of both
 JOINT_FILE_SUFFIX = ".pd_joint_pos"
+WRITES = rf"trajectory({re.escape(JOINT_FILE_SUFFIX)})?\.(h5|json)"
+REQUIRED = ("actions", "env_state")
 
 
 @dataclass(frozen=True)

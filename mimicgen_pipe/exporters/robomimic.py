@@ -30,6 +30,8 @@ import numpy as np
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.store import EpisodeStore
 
+FILE_NAME = "demos.hdf5"  # what write() makes in the export directory
+WRITES = r"demos\.hdf5"
 REQUIRED = ("actions", "env_state", "eef_pose", "target_pose", "gripper")
 
 

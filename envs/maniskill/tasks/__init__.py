@@ -32,7 +32,7 @@ class ManiSkillTask:
     objects: spec object name -> attribute of the ManiSkill env holding the actor.
     signals: (env, info) -> {signal name: bool}: the subtask signals from ManiSkill's
         ``evaluate()`` info and the unwrapped env (e.g. ``env.agent.is_grasping``): the stock
-        step's (``maniskill.fast_step: false``).
+        step's (``maniskill.lean_step: false``).
     evaluate: env -> {signal name: bool, ..., "success": bool}: the same signals and
         ManiSkill's success, from poses and contacts read straight from SAPIEN
         (envs/maniskill/lean.py): the lean step's, called only when asked.

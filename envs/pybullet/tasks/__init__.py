@@ -6,9 +6,10 @@ World frame: z up, the table top is the plane z = 0, every robot base sits at
 ``ROBOT_BASE_XY`` on it facing +x. Object poses are their body frames (box centres; a
 fixture's frame is the centre of its base on the table).
 
-Reset variants: each object uniform in its box, yaw uniform in its range, objects placed in
-spec order and each redrawn while its centre is closer than the variant's ``min_distance``
-to one placed before it.
+Reset variants: drawn by mimicgen_pipe.reset_variants (each object uniform in its box, its
+yaw right after it, objects in spec order, each redrawn while its centre is closer than the
+variant's ``min_distance`` to one placed before it, or farther than its ``max_reach`` from
+the robot base). PyBullet has no reset of its own: no variant is ``native``.
 """
 
 from __future__ import annotations
@@ -65,6 +66,14 @@ class PyBulletTask:
     success: Callable[[dict[str, bool]], bool]
     demonstrate: Callable[[Any, Any], None]
 
+    def __post_init__(self) -> None:
+        native = [name for name, v in self.spec.reset_variants.items() if v.native]
+        if native:
+            raise ValueError(
+                f"task {self.spec.name}: variants {native} are native, but PyBullet has no "
+                "reset of its own to draw them: give them bounds to draw from instead"
+            )
+
 
 def cube(rgba: tuple[float, float, float, float]) -> ObjectShape:
     """A 4 cm cube of 50 g."""
@@ -88,25 +97,3 @@ def on(lower: np.ndarray, gap: float) -> np.ndarray:
     goal = lower.copy()
     goal[2, 3] += 2 * CUBE_HALF + gap
     return goal
-
-
-def sample_object_poses(task: PyBulletTask, variant: str, rng: np.random.Generator) -> dict:
-    """Initial world poses (4x4) of the task's objects in ``variant``, resting on the table.
-    Objects are placed in spec order, each redrawn (up to 1000 tries) while it is closer
-    than the variant's ``min_distance`` to one placed before it."""
-    reset = task.spec.reset_variants[variant]
-    placed: dict[str, np.ndarray] = {}
-    for name in task.spec.objects:
-        b = reset.bounds[name]
-        for _ in range(1000):
-            xy = np.array([rng.uniform(*b.x), rng.uniform(*b.y)])
-            if all(np.linalg.norm(xy - p[:2, 3]) >= reset.min_distance for p in placed.values()):
-                break
-        else:
-            raise RuntimeError(f"{task.spec.name} {variant}: no room for {name}")
-        yaw = rng.uniform(*b.yaw)
-        pose = np.eye(4)
-        pose[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
-        pose[:2, 3], pose[2, 3] = xy, task.shapes[name].z
-        placed[name] = pose
-    return placed

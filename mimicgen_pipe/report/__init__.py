@@ -1,0 +1,87 @@
+"""The reports: our metrics beside the paper's numbers, as Markdown and HTML.
+
+Built only from what is present: every number in them comes from a metrics file (selected
+by the identity fields every stage writes, mimicgen_pipe.metrics), a saved ablation run, or
+the paper's numbers file (each with the table it was read from). A metric that was not
+produced is written ``missing``; no row is made up. A coverage, training or evaluation of
+another generate run than the one shown beside it is marked, never mixed in silently.
+
+Two reports: :func:`build_report`, the default pipeline's (the main task, its policies over
+training, robot transfer, ablations, videos), and :func:`build_suite_report`, the task
+suite's. Each is a list of blocks (mimicgen_pipe.report.blocks) rendered as Markdown and
+HTML. The default pipeline's report comes with its figures of the policies over training
+(mimicgen_pipe.report.curves) and its headline numbers (mimicgen_pipe.report.summary).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+from mimicgen_pipe.layout import MEDIA
+from mimicgen_pipe.params import Params
+from mimicgen_pipe.report import method, suite
+from mimicgen_pipe.report.ablations import ablation_blocks, suite_ablation_blocks
+from mimicgen_pipe.report.blocks import Block
+from mimicgen_pipe.report.curves import curve_blocks
+from mimicgen_pipe.report.inputs import Media, MetricsSet, Run
+from mimicgen_pipe.report.paper import PaperResults
+from mimicgen_pipe.report.settings import method_settings
+from mimicgen_pipe.report.transfer import transfer_blocks, transfer_table
+from mimicgen_pipe.report.videos import video_blocks
+from mimicgen_pipe.taskspec import TaskSpec
+
+
+def build_report(
+    params: Params,
+    spec: TaskSpec,
+    ms: MetricsSet,
+    ablations: Sequence[Run],
+    paper: PaperResults,
+    heatmaps: Mapping[str, str],
+    media: Mapping[str, Media],
+    curves: Sequence[str],
+) -> list[Block]:
+    """The default pipeline's report. ``spec``: the main task's (its paper_task names the
+    paper's task ours stands for); ``ms``: the metrics folder; ``ablations``: saved ablation
+    runs; ``heatmaps``: variant -> its coverage heat maps as the report refers to them (those
+    present); ``media``: variant -> its videos (those present); ``curves``: the figure files
+    of mimicgen_pipe.report.curves made beside the report."""
+    task, paper_task, variants = params.task, spec.paper_task, params.generate.variants
+    settings = method_settings(params)
+    t = params.transfer
+    transfer = [
+        transfer_table(ms, t.backend, t.tasks, t.variants, t.robots),
+        transfer_table(ms, params.backend, [task], variants, ["panda", *t.maniskill_robots]),
+    ]
+    return [
+        *method.intro_blocks(task, paper_task, settings),
+        *method.dgr_blocks(params, paper_task, settings, ms, paper),
+        *method.policy_blocks(params, paper_task, ms, paper),
+        *curve_blocks(task, curves),
+        *method.coverage_blocks(params, paper_task, ms, paper, heatmaps),
+        *ablation_blocks(task, paper_task, settings, ablations, paper),
+        *transfer_blocks(transfer, paper),
+        # the report's folder refers to the videos where the render stage keeps them
+        *video_blocks(task, variants, media, f"../{MEDIA}"),
+    ]
+
+
+def build_suite_report(
+    params: Params,
+    specs: Sequence[TaskSpec],
+    ms: MetricsSet,
+    ablations: Mapping[str, Sequence[Run]],
+    paper: PaperResults,
+) -> list[Block]:
+    """The task suite's report (params suite.*). ``specs``: the suite's tasks; ``ms``: its
+    metrics folder; ``ablations``: task -> its saved ablation runs."""
+    blocks = [
+        *suite.intro_blocks(specs),
+        *suite.suite_dgr_blocks(params, specs, ms, paper),
+        *suite.object_transfer_blocks(params, specs, ms, paper),
+        *suite.suite_policy_blocks(params, specs, ms, paper),
+    ]
+    for spec in specs:
+        if ablations.get(spec.name):
+            blocks += suite_ablation_blocks(spec.name, spec.paper_task, ablations[spec.name], paper)
+    return blocks

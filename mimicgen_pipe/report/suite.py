@@ -1,0 +1,212 @@
+"""The task suite's sections: per task its data generation rates, object transfer and
+policies, beside the paper's numbers for the task it stands for."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from mimicgen_pipe.metrics import Metrics
+from mimicgen_pipe.params import Params
+from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
+from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_delta
+from mimicgen_pipe.report.inputs import (
+    OTHER_RUN,
+    MetricsSet,
+    evaluation,
+    of_other_run,
+    other_run_note,
+    policy_data,
+)
+from mimicgen_pipe.report.paper import PaperResults
+from mimicgen_pipe.taskspec import TaskSpec
+
+
+def intro_blocks(specs: Sequence[TaskSpec]) -> list[Block]:
+    tasks = ", ".join(f"`{s.name}` ({s.paper_task})" for s in specs)
+    return [
+        Heading(1, "MimicGen task suite: our numbers and the paper's"),
+        Text(
+            f"Tasks, each beside the paper's task it stands for: {tasks}. Paper numbers come "
+            "from `reference/paper_results.yaml`, each with the table it was read from; ours "
+            f"from the suite's metrics files (`suite/dvc.yaml`). `{MISSING}` marks a metric "
+            "the suite did not produce."
+        ),
+    ]
+
+
+def _dgr_run(ms: MetricsSet, params: Params, task: str, variant: str) -> Metrics | None:
+    """The suite's fixed attempts of ``task`` on ``variant`` (a DGR measure)."""
+    return ms.one(
+        stage="generate",
+        task=task,
+        backend=params.suite.backend,
+        variant=variant,
+        robot=params.generate.robot,
+        purpose="dgr",
+    )
+
+
+def _kept(m: Mapping[str, Any]) -> str:
+    return f"{fmt(m['dgr'])} ({m['successes']}/{m['attempts']})"
+
+
+def suite_dgr_blocks(
+    params: Params, specs: Sequence[TaskSpec], ms: MetricsSet, paper: PaperResults
+) -> list[Block]:
+    """Per task x variant the DGR of the suite's fixed attempts, the action-noise sigma they
+    ran with (the suite's ``action_noise``, or less where the task caps it), the task
+    failures per subtask (the first subtask an attempt did not achieve), time and steps per
+    attempt, beside the paper's Table O.1 DGR of the task it stands for."""
+    rows = []
+    for spec in specs:
+        for v in params.suite.variants:
+            g = _dgr_run(ms, params, spec.name, v)
+            ref = paper.find(table="O.1", task=spec.paper_task, variant=v, metric="dgr")
+            if g is None:
+                ours, failures, per_attempt = MISSING, MISSING, MISSING
+            else:
+                m = g.values
+                ours = _kept(m)
+                failures = ", ".join(
+                    f"{s.name} {m.get(f'failures_{s.name}', 0)}" for s in spec.subtasks
+                )
+                per_attempt = (
+                    f"{fmt(m['seconds_per_attempt_mean'], 2)} s, "
+                    f"{fmt(m['steps'] / max(1, m['attempts']), 0)} steps"
+                )
+            rows.append(
+                (
+                    f"{spec.name} ({v})",
+                    spec.paper_task,
+                    ours,
+                    f"{spec.action_noise(params.suite.action_noise):g}",
+                    failures,
+                    per_attempt,
+                    ref[0].cite() if ref else "– (none in the paper)",
+                )
+            )
+    columns = ("task (variant)", "paper task", "DGR % (kept/attempts)", "σ",
+               "task failures per subtask", "per attempt", "paper DGR")  # fmt: skip
+    return [
+        Heading(2, "Task suite: data generation rate per task"),
+        Text(
+            "Each task generated from its own 10 source demos (ManiSkill's motion planner), "
+            "a fixed number of attempts per reset variant (`suite/dvc.yaml`), with action "
+            "noise σ (paper M.4; a task file may cap it where its tolerances cannot take the "
+            "suite's). Paper numbers are Table O.1's for the task ours stands for; the "
+            "paper's settings per task (M.6) differ from ours (random selection, one source "
+            "demo per episode, σ 0.05 in robosuite's units)."
+        ),
+        Table(columns, tuple(rows)),
+    ]
+
+
+def object_transfer_blocks(
+    params: Params, specs: Sequence[TaskSpec], ms: MetricsSet, paper: PaperResults
+) -> list[Block]:
+    """The tasks generated on their object-transfer variant O1 (suite.object_transfer): its
+    DGR beside D0's, with the same source demos and attempts."""
+    rows = []
+    for spec in specs:
+        if spec.name not in params.suite.object_transfer:
+            continue
+        d0, o1 = (_dgr_run(ms, params, spec.name, v) for v in ("D0", "O1"))
+        rows.append(
+            (
+                spec.name,
+                spec.paper_task,
+                _kept(d0.values) if d0 else MISSING,
+                _kept(o1.values) if o1 else MISSING,
+                fmt_delta(d0 and d0.values["dgr"], o1 and o1.values["dgr"]),
+            )
+        )
+    if not rows:
+        return []
+    cited = ", ".join(f"{e.variant} {e.value:.1f}" for e in paper.find(table="F.1", metric="dgr"))
+    tasks = ", ".join(dict.fromkeys(e.task for e in paper.find(table="F.1")))
+    columns = ("task", "paper task", "D0 DGR % (kept/attempts)", "O1 DGR % (kept/attempts)",
+               "Δ DGR (O1 − D0)")  # fmt: skip
+    return [
+        Heading(2, "Object transfer: data generation rate with another object"),
+        Text(
+            "O1 is D0's reset distribution with another object in the scene, generated from "
+            "the same source demos (recorded with D0's object) and the same attempts and σ "
+            f"as the table above (paper F). The paper's object transfer is {tasks} (Table "
+            f"F.1, DGR %): {cited}."
+        ),
+        Table(columns, tuple(rows)),
+    ]
+
+
+def suite_policy_blocks(
+    params: Params, specs: Sequence[TaskSpec], ms: MetricsSet, paper: PaperResults
+) -> list[Block]:
+    """Per task x variant the success rate of the BC-RNN trained on the source demos and of
+    the one trained on that variant's generated demos, max and last over training, beside the
+    paper's Table P.1 for the task ours stands for. Rows: D0 always, other variants where a
+    metric is present."""
+    backend = params.suite.backend
+    rows, marked = [], False
+    protocols = set()  # (episodes, every_epochs, checkpoints) of the evaluations shown
+    for spec in specs:
+        for v in spec.variants:
+            src, gen = (evaluation(ms, params, spec.name, backend, d, v) for d in ("source", v))
+            if v != "D0" and src is None and gen is None:
+                continue
+            protocols |= {
+                (
+                    m.values.get("episodes"),
+                    m.values.get("every_epochs"),
+                    m.values.get("checkpoints"),
+                )
+                for m in (src, gen)
+                if m is not None
+            }
+            other = of_other_run(gen, "data_run_id", policy_data(ms, params, spec.name, backend, v))
+            marked |= other
+            ref = [
+                e
+                for d in ("source", v)
+                for e in paper.find(table="P.1", task=spec.paper_task, data=d, variant=v)
+            ]
+            rows.append(
+                (
+                    f"{spec.name} ({v})",
+                    spec.paper_task,
+                    _sr(src),
+                    _sr(gen) + (f" {OTHER_RUN}" if other else ""),
+                    fmt_delta(
+                        src.values.get("success_rate_max"), gen.values.get("success_rate_max")
+                    )
+                    if src and gen
+                    else MISSING,
+                    "; ".join(f"{e.data}: {e.cite()}" for e in ref) or "– (none in the paper)",
+                )
+            )
+    columns = ("task (evaluated on)", "paper task", "source-only SR max / last",
+               "generated SR max / last", "gain (max)", "paper (low-dim, P.1)")  # fmt: skip
+    if len(protocols) == 1:
+        ((episodes, every, checkpoints),) = protocols
+        protocol = (
+            f"{episodes} episodes on each of {checkpoints} checkpoints per policy (every "
+            f"{every}th epoch and the last)"
+        )
+    else:
+        protocol = "episodes and checkpoints per policy as in each evaluate metric"
+    return [
+        Heading(2, "Task suite: policy success rate (%)"),
+        Text(
+            "BC-RNN (cpu profile) trained on each task's 10 source demos and on the demos "
+            f"generated for a variant (`suite/dvc.yaml`), evaluated on that variant: {protocol}."
+            " The paper's source agents are evaluated on D0 only."
+        ),
+        Table(columns, tuple(rows)),
+        *([Text(other_run_note("train/evaluate"))] if marked else []),
+    ]
+
+
+def _sr(m: Metrics | None) -> str:
+    if m is None:
+        return MISSING
+    return f"{fmt(m.values.get('success_rate_max'))} / {fmt(m.values.get('success_rate_last'))}"

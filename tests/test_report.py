@@ -1,0 +1,567 @@
+"""The reports: metrics selected by the identity they record, beside the paper's numbers."""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import envs
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.metrics import Metrics, metrics_identity, read_metrics, write_metrics
+from mimicgen_pipe.outputs import claims
+from mimicgen_pipe.params import Params
+from mimicgen_pipe.report import build_report, build_suite_report
+from mimicgen_pipe.report.ablations import suite_ablation_blocks
+from mimicgen_pipe.report.blocks import Heading, Image, Table, Text, render_html, render_markdown
+from mimicgen_pipe.report.curves import draw_curves, read_curves
+from mimicgen_pipe.report.inputs import MetricsSet, Run, read_metrics_folder
+from mimicgen_pipe.report.paper import load_paper_results
+from mimicgen_pipe.report.suite import suite_dgr_blocks, suite_policy_blocks
+from mimicgen_pipe.report.summary import headline_numbers
+from mimicgen_pipe.report.transfer import transfer_table
+from tests.conftest import cli
+
+REPO = Path(__file__).resolve().parents[1]
+PAPER = REPO / "reference/paper_results.yaml"
+STACK_CUBE = envs.task_spec("maniskill", "stack_cube")
+
+
+def m(stage: str, task: str, variant: str | None = None, **fields: Any) -> Metrics:
+    """Metrics as a stage writes them: identity fields (maniskill, panda unless given) and
+    values (every other keyword)."""
+    ident = {"backend": "maniskill", "robot": "panda", "data": None, "purpose": None}
+    ident |= {k: fields.pop(k) for k in list(fields) if k in ident}
+    if stage == "generate" and ident["purpose"] is None:
+        ident["purpose"] = "policy_data"
+    name = "_".join(str(x) for x in (stage, task, ident["data"], variant) if x)
+    return Metrics(Path(f"metrics/{name}.json"), stage, task, variant=variant, **ident,
+                   values=fields)  # fmt: skip
+
+
+def gen(task: str, variant: str, dgr: float, attempts: int = 200, **fields: Any) -> Metrics:
+    successes = round(dgr * attempts / 100)
+    return m("generate", task, variant, attempts=attempts, successes=successes, dgr=dgr, **fields)
+
+
+def with_settings(**generate: Any) -> Params:
+    p = Params()
+    level = generate.pop("level", None)
+    if level:
+        p = replace(p, pose_noise=replace(p.pose_noise, level=level))
+    return replace(p, generate=replace(p.generate, **generate))
+
+
+def report_md(params: Params, *files: Metrics, ablations=(), heatmaps=None) -> str:
+    paper = load_paper_results(PAPER)
+    blocks = build_report(
+        params, STACK_CUBE, MetricsSet(files), list(ablations), paper, heatmaps or {}, {}, ()
+    )
+    return render_markdown(blocks)
+
+
+def rows_of(md: str, *starts: str) -> list[str]:
+    return [ln for ln in md.splitlines() if ln.startswith(starts)]
+
+
+# --- the paper's numbers ------------------------------------------------------------------
+
+
+def test_paper_entries_are_unambiguous_for_matching():
+    paper = load_paper_results(PAPER)
+    assert STACK_CUBE.paper_task == "Stack"
+    groups = {}
+    for e in paper.entries:
+        assert e.table and e.value >= 0
+        if e.settings:
+            groups.setdefault((e.table, e.task, e.variant, e.metric, e.data), []).append(e)
+    for entries in groups.values():
+        assert len({tuple(sorted(e.settings)) for e in entries}) == 1  # same keys varied
+        assert len({tuple(sorted(e.settings.items())) for e in entries}) == len(entries)
+
+
+def test_a_malformed_paper_file_is_one_clear_error(tmp_path):
+    bad = tmp_path / "paper.yaml"
+    bad.write_text("entries:\n  - {table: O.1, task: Stack, variant: D0, value: 1}\n")
+    with pytest.raises(InputError, match=r"paper.yaml: entries\[0\]: 'metric' missing"):
+        load_paper_results(bad)
+
+
+def test_the_papers_transfer_and_coverage_numbers_come_from_its_file(tmp_path):
+    """Table E.1 and the coverage numbers of Appendix Q are read from the paper's file: a
+    changed number there is the number in the report."""
+    text = PAPER.read_text().replace("value: 37.7, condition: IIWA", "value: 12.3, condition: IIWA")
+    text = text.replace("value: 98.8", "value: 97.1")
+    changed = tmp_path / "paper.yaml"
+    changed.write_text(text)
+    blocks = build_report(
+        Params(), STACK_CUBE, MetricsSet(()), [], load_paper_results(changed), {}, {}, ()
+    )
+    md = render_markdown(blocks)
+    assert "Paper Table E.1, Square: D0: Panda 73.7, IIWA 12.3, UR5e 64.7; D1: Panda 48.9" in md
+    assert "(e.g. Coffee D1 97.1%, Threading D1 71%, Appendix Q)" in md
+
+
+# --- blocks -------------------------------------------------------------------------------
+
+
+def test_html_holds_the_same_tables_and_embeds_images():
+    blocks = [Table(("a", "b"), (("1 < 2", "`x`"),)), Image("h.png", "heat map")]
+    page = render_html(blocks, {"h.png": b"\x89PNG fake"}, "t")
+    assert "<td>1 &lt; 2</td><td><code>x</code></td>" in page
+    assert 'src="data:image/png;base64,iVBORyBmYWtl"' in page
+    assert "![heat map](h.png)" in render_markdown(blocks)
+
+
+def test_build_report_and_the_stage_stay_short():
+    from stages import report
+
+    for f in (build_report, build_suite_report, report.run):
+        assert len(inspect.getsource(f).splitlines()) <= 60, f.__qualname__
+
+
+# --- metrics identity ---------------------------------------------------------------------
+
+
+def test_metrics_say_what_they_are_and_a_file_without_it_is_one_error(tmp_path):
+    folder = tmp_path / "metrics"
+    ident = metrics_identity("generate", "stack_cube", "maniskill", "panda", variant="D0",
+                             purpose="dgr")  # fmt: skip
+    write_metrics(folder / "anything.json", ident | {"dgr": 50.0, "attempts": 10})
+    back = read_metrics(folder / "anything.json")
+    assert (back.stage, back.task, back.variant, back.robot, back.purpose, back.data) == (
+        "generate", "stack_cube", "D0", "panda", "dgr", None
+    )  # fmt: skip
+    assert back.values == {"dgr": 50.0, "attempts": 10}
+    (folder / "old.json").write_text(json.dumps({"dgr": 50.0, "task": "stack_cube"}))
+    with pytest.raises(InputError) as err:
+        read_metrics_folder(folder)
+    assert str(err.value).startswith(f"{folder / 'old.json'}: identity fields missing: ")
+    assert "stage, backend, variant, robot, data, purpose (" in str(err.value)
+    with pytest.raises(ValueError, match="purpose"):
+        metrics_identity("train", "stack_cube", "maniskill", "panda", data="D0", purpose="dgr")
+    with pytest.raises(ValueError, match="data"):
+        metrics_identity("evaluate", "stack_cube", "maniskill", "panda", variant="D0")
+
+
+def test_two_files_with_one_identity_are_one_error_naming_both():
+    ms = MetricsSet((gen("stack_cube", "D0", 90.0), replace(gen("stack_cube", "D0", 91.0),
+                     path=Path("metrics/copy.json"))))  # fmt: skip
+    with pytest.raises(InputError, match=r"generate_stack_cube_D0.json and metrics/copy.json"):
+        report_md(Params(), *ms.files)
+
+
+def test_params_with_task_stack_read_no_stack_cube_metrics(tmp_path):
+    """The committed metrics hold stack_cube's evaluations and stack's robot transfer runs:
+    with ``task: stack`` the report shows stack's rows only, none read from stack_cube's
+    files (whose names begin with stack_)."""
+    (tmp_path / "params.yaml").write_text(
+        "task: stack\nbackend: pybullet\ngenerate: {variants: [D0, D1]}\n"
+    )
+    cli("report", "--metrics", str(REPO / "metrics"), "--plots", str(REPO / "plots"),
+        "--paper", str(PAPER), "--out", "report", cwd=tmp_path)  # fmt: skip
+    md = (tmp_path / "report/report.md").read_text()
+    policies = md.split("## Policy success rate")[1].split("## ")[0]
+    assert "cube" not in policies
+    # the paper's three P.1 rows for Stack, all missing: no run of stack was evaluated
+    assert len(rows_of(policies, "| source demos", "| generated ")) == 3
+    assert policies.count("missing") == 9
+    dgr = md.split("## Data generation rate")[1].split("## ")[0]
+    assert rows_of(dgr, "| D0 | missing |", "| D1 | missing |") == rows_of(dgr, "| D")
+    ablations = md.split("## Ablations")[1].split("## ")[0]
+    assert "cube" not in ablations and "No saved ablation runs" in ablations
+    # stack's own robot-transfer runs are still shown
+    assert "| stack (D0) | 94.5 (7/200 IK) | 79.0 (42/200 IK) | 96.5 (3/200 IK) |" in md
+
+
+def test_a_generate_only_experiment_marks_what_is_of_the_earlier_run():
+    """generate re-run alone (new run id): the report shows its DGR, and the coverage and
+    policy rows measured on the earlier run's data are marked, not refused."""
+    files = (
+        gen("stack_cube", "D0", 80.0, attempts=1250, run_id="new"),
+        gen("stack_cube", "D1", 93.0, attempts=1075, run_id="same"),
+        m("coverage", "stack_cube", "D0", run_id="old", support_coverage_joint=59.1),
+        m("coverage", "stack_cube", "D1", run_id="same", support_coverage_joint=73.9),
+        m("evaluate", "stack_cube", "D0", data="D0", data_run_id="old", success_rate_max=86.0),
+        m("evaluate", "stack_cube", "D1", data="D1", data_run_id="same", success_rate_max=90.0),
+        m("evaluate", "stack_cube", "D0", data="source", data_run_id=None, success_rate_max=0.0),
+    )
+    md = report_md(Params(), *files)
+    assert rows_of(md, "| D0 | 1250 | 1000 | 80.0 |")  # the new generate run
+    assert rows_of(md, "| generated D0 † | D0 | 86.0 |")
+    assert rows_of(md, "| generated D1 | D1 | 90.0 |") and rows_of(md, "| source demos | D0 |")
+    assert rows_of(md, "| D0 † | missing | missing / missing | 59.1 |")
+    assert rows_of(md, "| D1 | missing | missing / missing | 73.9 |")
+    notes = [ln for ln in md.splitlines() if ln.startswith("† measured on the data of another")]
+    assert len(notes) == 2 and "train/evaluate has not been re-run" in notes[0]
+
+
+# --- the default pipeline's report --------------------------------------------------------
+
+
+def test_report_shows_missing_metrics_and_never_invents_rows():
+    md = report_md(Params(), gen("stack_cube", "D1", 93.0, attempts=1075))
+    d0, d1 = rows_of(md, "| D0 | "), rows_of(md, "| D1 | ")
+    assert d0[0].startswith("| D0 | missing | missing | missing | 94.3 (Table O.1, Stack D0)")
+    assert "| 93.0 | 90.0 (Table O.1, Stack D1)" in d1[0]
+    assert "63.3 (Table M.2, Stack D1) [no NN + no per-subtask]" in d1[0]  # our settings' row
+    sr = rows_of(md, "| source demos", "| generated ")
+    assert len(sr) == 3 and all(ln.count("missing") == 3 for ln in sr)
+    assert "38.7 ± 4.1 (Table P.1, Stack D0)" in sr[0]
+    assert "Heat maps for D0: missing." in md and "No saved ablation runs" in md
+
+    ev = m("evaluate", "stack_cube", "D1", data="D1", success_rate_max=96.0,
+           success_rate_max_std=1.5, success_rate_last=90.0, success_rate_last_std=2.0,
+           episodes=50, seeds=3)  # fmt: skip
+    md = report_md(Params(), gen("stack_cube", "D1", 93.0, attempts=1075), ev)
+    assert rows_of(md, "| generated D1") == [
+        "| generated D1 | D1 | 96.0 ± 1.5 | 90.0 ± 2.0 | 50 × 3 "
+        "| 100.0 ± 0.0 (Table P.1, Stack D1) |"
+    ]
+    # a generate run of another purpose or arm is not the main run's
+    other = (
+        gen("stack_cube", "D0", 50.0, purpose="dgr"),
+        gen("stack_cube", "D0", 60.0, robot="xarm6"),
+    )
+    assert rows_of(report_md(Params(), *other), "| D0 | missing | missing | missing |")
+
+
+def test_report_ablations_show_deltas_against_the_base_and_the_papers_direction():
+    def run(name: str, params: Params, *dgr: float) -> Run:
+        return Run(name, params, MetricsSet(tuple(gen("stack_cube", "D1", d, purpose="dgr")
+                                                  for d in dgr)))  # fmt: skip
+
+    runs = [
+        run("default", with_settings(), 90.0),
+        run("action_noise_0", with_settings(action_noise=0.0), 95.0),
+        run("nn_per_subtask", with_settings(selection="nearest_neighbor", per_subtask=True), 92.5),
+        run("pose_L2", with_settings(level="L2")),  # its metrics were not produced
+        run("seed_1", with_settings(seed=1), 91.0),
+        run("seed_2", with_settings(seed=2), 89.0),
+        run("other_task", replace(with_settings(), task="stack"), 99.0),  # not stack_cube's
+    ]
+    paper = load_paper_results(PAPER)
+    blocks = build_report(Params(), STACK_CUBE, MetricsSet(()), runs, paper, {}, {}, ())
+    tables = [b for b in blocks if isinstance(b, Table)]
+    ablation = next(t for t in tables if t.columns[0] == "run")
+    rows = {r[0]: r for r in ablation.rows}
+    assert set(rows) == {"default", "action_noise_0", "nn_per_subtask", "seed_1", "seed_2"}
+    assert rows["action_noise_0"][1] == "action_noise=0.0" and rows["action_noise_0"][5] == "+5.0"
+    assert "Square DGR 48.9 → 50.7 (+1.8, Table M.1)" in rows["action_noise_0"][8]
+    assert rows["nn_per_subtask"][5] == "+2.5"
+    assert rows["nn_per_subtask"][8].startswith("Stack DGR 63.3 → 90.0 (+26.7, Table M.2)")
+    assert rows["default"][1] == "(base)" and rows["default"][5] == ""
+    seeds = next(t for t in tables if t.columns[0] == "variant" and "seeds" in t.columns)
+    assert seeds.rows[0][1:5] == ("0, 1, 2", "90.0, 91.0, 89.0", "90.0 ± 1.0", "2.0")
+    assert "69.3 ± 0.4 (Table S.1, Stack Three D1)" in seeds.rows[0][5]
+
+
+def test_transfer_table_reads_each_arms_metrics():
+    ms = MetricsSet(
+        (
+            gen("stack", "D0", 95.0, backend="pybullet", purpose="dgr", ik_failures=7),
+            gen("stack", "D0", 78.5, backend="pybullet", robot="iiwa", purpose="dgr",
+                ik_failures=42),
+            gen("stack_cube", "D0", 96.2, attempts=1039),  # the main run, no IK check
+        )
+    )  # fmt: skip
+    table = transfer_table(ms, "pybullet", ["stack"], ["D0"], ["panda", "iiwa", "xarm6"])
+    assert table.rows == (("stack (D0)", "95.0 (7/200 IK)", "78.5 (42/200 IK)", "missing"),)
+    main = transfer_table(ms, "maniskill", ["stack_cube"], ["D0"], ["panda", "xarm6"])
+    assert main.rows == (("stack_cube (D0)", "96.2 (0/1039 IK)", "missing"),)
+
+
+def write_folder(folder: Path, *files: Metrics) -> Path:
+    """``files`` written as the stages write them, in ``folder``."""
+    for f in files:
+        ident = metrics_identity(f.stage, f.task, f.backend, f.robot, variant=f.variant,
+                                 data=f.data, purpose=f.purpose)  # fmt: skip
+        write_metrics(folder / f.path.name, ident | dict(f.values))
+    return folder
+
+
+def write_curves(plots: Path, *names: str, seeds: int = 1) -> None:
+    """Curve CSVs as train (train_stack_cube_<data>) and evaluate
+    (evaluate_stack_cube_<data>_on_<variant>) write them: ``seeds`` training seeds, 3 epochs."""
+    plots.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        if name.startswith("train_"):
+            rows = ["seed,epoch,step,loss,val_loss,seconds"]
+            rows += [f"{s},{e},{100 * e},{-e - s},{1 - e},{e}" for s in range(seeds)
+                     for e in (1, 2, 3)]  # fmt: skip
+        else:
+            rows = ["seed,epoch,success_rate"]
+            rows += [f"{s},{50 * e},{10.0 * e + s}" for s in range(seeds) for e in (1, 2, 3)]
+        (plots / f"{name}.csv").write_text("\n".join(rows) + "\n")
+
+
+def run_report(tmp_path: Path, metrics: Path, plots: Path, out: Path) -> None:
+    from stages import report
+
+    (tmp_path / "params.yaml").write_text("task: stack_cube\ngenerate: {variants: [D0, D1]}\n")
+    args = dict(params=str(tmp_path / "params.yaml"), metrics=str(metrics), ablations=None,
+                plots=str(plots), paper=str(PAPER), out=str(out), suite=False)  # fmt: skip
+    with claims():
+        report.run(argparse.Namespace(**args))
+
+
+def folder_bytes(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+POLICIES = (
+    gen("stack_cube", "D0", 96.24, run_id="a"),
+    gen("stack_cube", "D1", 93.0, run_id="b"),
+    m("coverage", "stack_cube", "D1", run_id="b", bins=3, support_coverage_joint=73.86),
+    m("train", "stack_cube", data="source"),
+    m("train", "stack_cube", data="D0"),
+    m("evaluate", "stack_cube", "D0", data="source", success_rate_max=0.0),
+    m("evaluate", "stack_cube", "D0", data="D0", data_run_id="a", success_rate_max=86.66,
+      success_rate_max_std=1.2),
+)  # fmt: skip
+
+
+def test_the_coverage_and_report_stages_together(tmp_path):
+    """The stage reads the metrics folder and the plots it is pointed at and writes the
+    report, its headline numbers and its figures; the heat maps stay where the coverage
+    stage writes them, referred to from the report and embedded in its HTML."""
+    metrics = write_folder(tmp_path / "metrics", *POLICIES)
+    plots = tmp_path / "plots"
+    write_curves(plots, "train_stack_cube_source", "train_stack_cube_D0",
+                 "evaluate_stack_cube_D0_on_D0")  # fmt: skip
+    (plots / "coverage_stack_cube_D1.png").write_bytes(b"\x89PNG fake")
+    out = tmp_path / "report"
+    run_report(tmp_path, metrics, plots, out)
+    assert sorted(p.name for p in out.iterdir()) == [
+        "report.html", "report.md", "success_rates.png", "summary.json", "training_curves.png"
+    ]  # fmt: skip
+    md = (out / "report.md").read_text()
+    assert "![initial object positions, stack_cube D1](../plots/coverage_stack_cube_D1.png)" in md
+    assert (
+        "![training and validation loss per epoch, one panel per policy](training_curves.png)" in md
+    )
+    assert "![success rate per checkpoint rolled out](success_rates.png)" in md
+    assert rows_of(md, "| D1 | 3 | missing / missing | 73.9 |")
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 3  # the heat maps and both figures
+    assert 'src="data:image/png;base64,iVBORyBmYWtl"' in page
+    assert "Task suite" not in md
+    assert (out / "summary.json").read_text() == json.dumps(
+        {"coverage_D1": 73.9, "dgr_D0": 96.2, "dgr_D1": 93.0, "sr_D0_on_D0": 86.7,
+         "sr_source_on_D0": 0.0}, indent=2
+    ) + "\n"  # fmt: skip
+    # the same inputs, the same bytes: DVC sees no change
+    first = folder_bytes(out)
+    run_report(tmp_path, metrics, plots, out)
+    assert folder_bytes(out) == first
+
+
+def test_a_report_folder_with_heat_map_copies_is_replaced_and_one_with_other_files_refused(
+    tmp_path,
+):
+    """A report folder holding heat-map copies (coverage_*.png) is replaced whole, copies
+    gone; one holding a file the stage does not write is refused before any work. Without
+    policies (no train or evaluate metrics) there are no figures and no success rates."""
+    metrics = write_folder(tmp_path / "metrics", *POLICIES[:3])
+    write_curves(tmp_path / "plots", "train_stack_cube_D1")  # no train metrics: not drawn
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "coverage_stack_cube_D0.png").write_bytes(b"\x89PNG old copy")
+    (out / "report.md").write_text("old")
+    run_report(tmp_path, metrics, tmp_path / "plots", out)
+    assert sorted(p.name for p in out.iterdir()) == ["report.html", "report.md", "summary.json"]
+    assert json.loads((out / "summary.json").read_text()) == {
+        "coverage_D1": 73.9, "dgr_D0": 96.2, "dgr_D1": 93.0
+    }  # fmt: skip
+    assert "Policies over training" not in (out / "report.md").read_text()
+    (out / "notes.txt").write_text("mine")
+    before = folder_bytes(out)
+    with pytest.raises(InputError, match=r"holds 'notes.txt', which this stage does not write"):
+        run_report(tmp_path, metrics, tmp_path / "plots", out)
+    assert folder_bytes(out) == before
+
+
+# --- headline numbers and figures ---------------------------------------------------------
+
+
+def test_the_summary_holds_the_numbers_the_report_shows():
+    """One key per headline number of the main run, rounded as the report shows it; runs of
+    another purpose or arm, and numbers not measured, have none."""
+    files = (
+        *POLICIES,
+        gen("stack_cube", "D1", 50.0, purpose="dgr"),
+        m("evaluate", "stack_cube", "D1", data="D1", robot="xarm6", success_rate_max=99.0),
+    )
+    numbers = headline_numbers(Params(), MetricsSet(files))
+    assert numbers == {"dgr_D0": 96.2, "dgr_D1": 93.0, "sr_source_on_D0": 0.0,
+                       "sr_D0_on_D0": 86.7, "coverage_D1": 73.9}  # fmt: skip
+    md = report_md(Params(), *files)
+    assert rows_of(md, "| D0 | 200 | 192 | 96.2 |") and rows_of(md, "| D1 | 200 | 186 | 93.0 |")
+    assert rows_of(md, "| generated D0 | D0 | 86.7 ± 1.2 |")
+    assert rows_of(md, "| source demos | D0 | 0.0 |") and rows_of(md, "| D1 | 3 | ")
+    variants = ["D0", "D1", "D2"]  # every number of every variant: twelve keys
+    every = [gen("stack_cube", v, 90.0) for v in variants]
+    every += [m("coverage", "stack_cube", v, support_coverage_joint=50.0) for v in variants]
+    every += [m("evaluate", "stack_cube", v, data=d, success_rate_max=1.0)
+              for v in variants for d in ("source", v)]  # fmt: skip
+    d2 = replace(Params(), generate=replace(Params().generate, variants=variants))
+    assert sorted(headline_numbers(d2, MetricsSet(tuple(every)))) == sorted(
+        f"{k}_{v}" for v in variants for k in ("dgr", "sr_source_on", f"sr_{v}_on", "coverage")
+    )
+    assert headline_numbers(Params(), MetricsSet(POLICIES[:3])) == {
+        "dgr_D0": 96.2, "dgr_D1": 93.0, "coverage_D1": 73.9
+    }  # fmt: skip
+
+
+def test_curves_are_read_for_the_policies_the_metrics_name(tmp_path):
+    """Train and evaluate CSVs of the policies the metrics say were trained and evaluated,
+    averaged over seeds per epoch; an absent CSV is left out, a CSV without metrics unread."""
+    plots = tmp_path / "plots"
+    write_curves(plots, "train_stack_cube_D0", "train_stack_cube_D1",
+                 "evaluate_stack_cube_D0_on_D0", seeds=2)  # fmt: skip
+    training, success = read_curves(MetricsSet(POLICIES), Params(), plots)
+    assert [c.label for c in training] == ["generated D0"]  # source: no CSV; D1: no metrics
+    assert [c.label for c in success] == ["generated D0 on D0"]
+    assert training[0].seeds == 2 and training[0].epochs.tolist() == [1, 2, 3]
+    assert training[0].columns["loss"].tolist() == [-1.5, -2.5, -3.5]  # seeds 0 and 1
+    assert success[0].columns["success_rate"].tolist() == [10.5, 20.5, 30.5]
+    assert read_curves(MetricsSet(POLICIES[:3]), Params(), plots) == ([], [])
+    (plots / "train_stack_cube_D0.csv").write_text("seed,epoch,loss,val_loss\n0,1,x,2\n")
+    with pytest.raises(InputError, match=r"train_stack_cube_D0.csv: line 2: expected numbers"):
+        read_curves(MetricsSet(POLICIES), Params(), plots)
+    (plots / "train_stack_cube_D0.csv").write_text("seed,epoch,loss\n0,1,2\n")
+    with pytest.raises(InputError, match=r"train_stack_cube_D0.csv: columns val_loss missing"):
+        read_curves(MetricsSet(POLICIES), Params(), plots)
+
+
+def test_figures_are_pngs_of_fixed_bytes(tmp_path):
+    """The same curves give the same PNG bytes, with no version or date in them; no curves,
+    no figure."""
+    write_curves(tmp_path, "train_stack_cube_D0", "evaluate_stack_cube_D0_on_D0")
+    curves = read_curves(MetricsSet(POLICIES), Params(), tmp_path)
+    figures = draw_curves("stack_cube", *curves)
+    assert sorted(figures) == ["success_rates.png", "training_curves.png"]
+    for data in figures.values():
+        assert data.startswith(b"\x89PNG\r\n\x1a\n")
+        assert b"atplotlib" not in data and b"tIME" not in data
+    assert draw_curves("stack_cube", *curves) == figures
+    assert draw_curves("stack_cube", curves[0], []).keys() == {"training_curves.png"}
+    assert draw_curves("stack_cube", [], []) == {}
+
+
+# --- the task suite's report --------------------------------------------------------------
+
+
+def suite_params(tasks: list[str]) -> Params:
+    p = Params()
+    return replace(p, suite=replace(p.suite, tasks=tasks, object_transfer=["peg_insertion"]))
+
+
+def test_the_suite_report_has_the_suite_sections_only():
+    tasks = ["peg_insertion", "plug_charger"]
+    specs = [envs.task_spec("maniskill", t) for t in tasks]
+    timing = {"seconds_per_attempt_mean": 0.3, "steps": 40000, "purpose": "dgr"}
+    files = (
+        gen("peg_insertion", "D0", 52.0, **timing),
+        gen("peg_insertion", "O1", 43.0, **timing),
+        gen("peg_insertion", "D0", 56.1, attempts=1783, run_id="t"),  # its policy data
+        m("evaluate", "peg_insertion", "D0", data="D0", data_run_id="t", success_rate_max=62.0,
+          success_rate_last=54.0),
+        gen("stack_cube", "D0", 96.2, attempts=1039),  # the main task's: not in this report
+    )  # fmt: skip
+    paper = load_paper_results(PAPER)
+    blocks = build_suite_report(suite_params(tasks), specs, MetricsSet(files), {}, paper)
+    headings = [b.text for b in blocks if isinstance(b, Heading)]
+    assert headings == [
+        "MimicGen task suite: our numbers and the paper's",
+        "Task suite: data generation rate per task",
+        "Object transfer: data generation rate with another object",
+        "Task suite: policy success rate (%)",
+    ]
+    md = render_markdown(blocks)
+    assert "stack_cube" not in md
+    assert rows_of(md, "| peg_insertion (D0) | Square | 52.0 (104/200) | 0.025 |")
+    assert rows_of(md, "| peg_insertion | Square | 52.0 (104/200) | 43.0 (86/200) | -9.0 |")
+    assert "Mug Cleanup (Table F.1, DGR %): D0 29.5, O1 31.0, O2 24.5" in md
+    assert rows_of(md, "| peg_insertion (D0) | Square | missing | 62.0 / 54.0 | missing |")
+    assert "†" not in md
+    # the policy data generated again since the policy was trained: its row is marked
+    files = (*files[:2], gen("peg_insertion", "D0", 50.0, attempts=2000, run_id="u"), *files[3:])
+    blocks = build_suite_report(suite_params(tasks), specs, MetricsSet(files), {}, paper)
+    md = render_markdown(blocks)
+    assert rows_of(md, "| peg_insertion (D0) | Square | missing | 62.0 / 54.0 † | missing |")
+    assert "† measured on the data of another generate run" in md
+
+
+def test_the_suite_table_states_the_action_noise_each_task_ran_with():
+    """plug_charger caps the noise (its 0.5 mm clearance); the others run at the suite's."""
+    tasks = ["pull_cube_tool", "plug_charger"]
+    specs = [envs.task_spec("maniskill", t) for t in tasks]
+    timing = {"seconds_per_attempt_mean": 0.3, "steps": 40000, "purpose": "dgr"}
+    ms = MetricsSet((gen("pull_cube_tool", "D0", 64.0, **timing),
+                     gen("plug_charger", "D0", 60.0, **timing)))  # fmt: skip
+    paper = load_paper_results(PAPER)
+    table = suite_dgr_blocks(suite_params(tasks), specs, ms, paper)[-1]
+    rows = {r[0]: dict(zip(table.columns, r, strict=True)) for r in table.rows}
+    assert rows["pull_cube_tool (D0)"]["σ"] == "0.025"
+    assert rows["plug_charger (D0)"]["σ"] == "0"
+    assert "78.2" in rows["plug_charger (D0)"]["paper DGR"]
+    assert rows["plug_charger (D1)"]["DGR % (kept/attempts)"] == "missing"
+
+
+def test_suite_policy_table_sets_source_beside_generated_and_the_paper():
+    spec = envs.task_spec("maniskill", "place_sphere")  # stands for Pick Place
+    protocol = {"episodes": 50, "every_epochs": 50, "checkpoints": 4}
+
+    def ev(data: str, variant: str, best: float, last: float, **more: Any) -> Metrics:
+        return m("evaluate", "place_sphere", variant, data=data, success_rate_max=best,
+                 success_rate_last=last, **(protocol | more))  # fmt: skip
+
+    files = [ev("source", "D0", 6.0, 2.0), ev("D0", "D0", 84.0, 80.0), ev("source", "D1", 0.0, 0.0)]
+    paper, params = load_paper_results(PAPER), suite_params(["place_sphere"])
+    blocks = suite_policy_blocks(params, [spec], MetricsSet(tuple(files)), paper)
+    assert "50 episodes on each of 4 checkpoints per policy (every 50th epoch" in blocks[1].text
+    files[2] = ev("source", "D1", 0.0, 0.0, episodes=20)
+    mixed = suite_policy_blocks(params, [spec], MetricsSet(tuple(files)), paper)
+    assert "as in each evaluate metric" in mixed[1].text
+    d0, d1 = blocks[2].rows  # D2: no metric, no row
+    assert d0 == (
+        "place_sphere (D0)", "Pick Place", "6.0 / 2.0", "84.0 / 80.0", "+78.0",
+        "source: 0.0 ± 0.0 (Table P.1, Pick Place D0); D0: 58.7 ± 7.5 (Table P.1, Pick Place D0)",
+    )  # fmt: skip
+    assert d1 == (
+        "place_sphere (D1)", "Pick Place", "0.0 / 0.0", "missing", "missing",
+        "– (none in the paper)",
+    )  # fmt: skip
+
+
+def test_suite_ablations_compare_with_their_own_default_run():
+    """A suite task's ablations have a base of their own (here action noise 0.025, not
+    params.yaml's 0.05): deltas are against the run named default, and a folder without it
+    says so instead of comparing with the wrong base."""
+    paper = load_paper_results(PAPER)
+
+    def run(name: str, params: Params, dgr: float) -> Run:
+        params = replace(params, task="pull_cube_tool")
+        return Run(name, params, MetricsSet((gen("pull_cube_tool", "D1", dgr, purpose="dgr"),)))
+
+    base, l2 = with_settings(action_noise=0.025), with_settings(action_noise=0.025, level="L2")
+    runs = [
+        run("default", base, 43.5),
+        run("action_noise_0", with_settings(action_noise=0.0), 62.0),
+        run("pose_noise_L2", l2, 29.5),
+    ]
+    blocks = suite_ablation_blocks("pull_cube_tool", "Hammer Cleanup", runs, paper)
+    assert blocks[0] == Heading(2, "Ablations on pull_cube_tool (Hammer Cleanup)")
+    rows = {r[0]: r for r in blocks[-1].rows}
+    assert rows["default"][1] == "(base)"
+    assert rows["action_noise_0"][1:6] == ("action_noise=0.0", "D1", "200", "62.0 ± 3.4", "+18.5")
+    assert rows["pose_noise_L2"][1] == "pose_noise.level=L2" and rows["pose_noise_L2"][5] == "-14.0"
+    lone = suite_ablation_blocks("pull_cube_tool", "Hammer Cleanup", runs[1:], paper)
+    assert isinstance(lone[-1], Text)
+    assert "missing" in lone[-1].text and "action_noise_0, pose_noise_L2" in lone[-1].text

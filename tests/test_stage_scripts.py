@@ -1,0 +1,103 @@
+"""Stage scripts stay thin (parse arguments, call the library, write outputs), every class
+has a name of its own, and what a stage turns its params into is built in one place: the
+training config from train params, the generate options and the task's noise cap (no
+simulator)."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import envs
+from mimicgen_pipe.cli import STAGES
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.params import Params, TrainParams, TrainProfile
+from mimicgen_pipe.policy import PolicyConfig
+from mimicgen_pipe.runner import capped_action_noise, with_generate_options
+from mimicgen_pipe.training import (
+    SequenceData,
+    TrainConfig,
+    TrainingData,
+    default_device,
+    train_config,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+MAX_RUN_LINES = 60
+
+
+def test_every_stage_run_is_at_most_60_lines():
+    lengths = {}
+    for path in sorted((REPO / "stages").glob("*.py")):
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.FunctionDef) and node.name == "run":
+                lengths[path.stem] = node.end_lineno - node.lineno + 1
+    assert set(STAGES) <= set(lengths), "a stage without a run function"
+    too_long = {stage: n for stage, n in lengths.items() if n > MAX_RUN_LINES}
+    assert not too_long, (
+        f"run longer than {MAX_RUN_LINES} lines: {too_long}; move logic to mimicgen_pipe"
+    )
+
+
+def test_no_two_classes_share_a_name():
+    where: dict[str, list[str]] = {}
+    for folder in ("mimicgen_pipe", "stages"):
+        for path in sorted((REPO / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ClassDef):
+                    where.setdefault(node.name, []).append(
+                        f"{path.relative_to(REPO)}:{node.lineno}"
+                    )
+    assert {name: at for name, at in where.items() if len(at) > 1} == {}
+
+
+def training_data(obs_dims: tuple[int, ...], action_dim: int) -> TrainingData:
+    empty = SequenceData(np.zeros((0, sum(obs_dims)), np.float32), np.zeros((0, 7)), np.zeros(0))
+    return TrainingData(empty, empty, obs_dims, action_dim, {})
+
+
+def test_the_training_config_is_the_active_profile_and_the_data_layout():
+    paper = TrainProfile(hidden=64, layers=3, seq_len=7, batch_size=9, lr=0.01,
+                         lr_schedule="cosine", epochs=4, steps_per_epoch=5, checkpoint_every=2,
+                         device="auto")  # fmt: skip
+    train = TrainParams(profile="paper", obs_keys=["eef_pos", "cubeA_pos"], paper=paper)
+    config = train_config(train, training_data((3, 4), 7))
+    assert config == TrainConfig(
+        PolicyConfig(("eef_pos", "cubeA_pos"), (3, 4), 7, hidden=64, layers=3, seq_len=7),
+        batch_size=9,
+        lr=0.01,
+        epochs=4,
+        steps_per_epoch=5,
+        checkpoint_every=2,
+        lr_schedule="cosine",
+        device=default_device(),
+    )
+    cpu = train_config(dataclasses.replace(train, profile="cpu"), training_data((3, 4), 7))
+    assert (cpu.policy.hidden, cpu.epochs, cpu.device) == (100, 200, "cpu")
+    # the architecture lives in the policy config only
+    names = {f.name for f in dataclasses.fields(TrainConfig)}
+    assert not names & {f.name for f in dataclasses.fields(PolicyConfig)}
+
+
+def test_generate_options_stand_in_for_their_keys():
+    params = Params()
+    assert with_generate_options(params, None, None) == params
+    g = with_generate_options(params, 12, 0.02).generate
+    assert (g.mode, g.max_attempts, g.action_noise) == ("fixed_attempts", 12, 0.02)
+    with pytest.raises(InputError, match=r"^--attempts 0: expected a value in \[1, "):
+        with_generate_options(params, 0, None)
+
+
+def test_a_task_caps_the_generate_action_noise_and_says_so():
+    params = dataclasses.replace(Params(), task="plug_charger")
+    capped, note = capped_action_noise(params, envs.task_spec("maniskill", "plug_charger"))
+    assert capped.generate.action_noise == 0.0
+    assert (
+        note == "action noise sigma 0.0, not 0.05: plug_charger's max_action_noise (its task file)"
+    )
+    spec = envs.task_spec("maniskill", "stack_cube")
+    assert capped_action_noise(Params(), spec) == (Params(), None)
