@@ -1,0 +1,82 @@
+"""The pipelines stand apart and an ablation re-runs only what it changes: a bare
+`dvc repro` / `dvc exp run` considers the default pipeline (dvc.yaml) and nothing of the task
+suite or the quickstart, and a changed generate or train key reaches only the stages that
+read it and their downstream."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import networkx as nx
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def graph() -> nx.DiGraph:
+    from dvc.repo import Repo
+
+    return Repo(str(REPO)).index.graph  # edges run from a stage to the stages it reads
+
+
+def considered(graph: nx.DiGraph, pipeline: str) -> set:
+    """What `dvc repro <pipeline>` looks at: its stages and everything upstream of them."""
+    stages = {s for s in graph.nodes if s.relpath == pipeline}
+    return stages.union(*(nx.descendants(graph, s) for s in stages))
+
+
+def param_names(stage) -> list[str]:
+    return [n for d in stage.deps if hasattr(d, "params") for n in (d.params or d.hash_info.value)]
+
+
+def rerun(graph: nx.DiGraph, key: str, pipeline: str = "dvc.yaml") -> set[str]:
+    """Stages a bare `dvc exp run -S key=...` re-runs: those listing ``key`` (or its
+    section) as a param, and everything downstream of them."""
+    pool = considered(graph, pipeline)
+    changed = {s for s in pool if any(key == n or key.startswith(n + ".") for n in param_names(s))}
+    hit = changed.union(*(nx.ancestors(graph, s) & pool for s in changed))
+    return {s.addressing for s in hit}
+
+
+def test_a_bare_repro_runs_the_default_pipeline_only(graph):
+    outside = sorted(f"{s.relpath}:{s.addressing}" for s in considered(graph, "dvc.yaml"))
+    outside = [s for s in outside if not s.startswith("dvc.yaml:")]
+    assert not outside, f"the default pipeline pulls in: {outside}"
+    for other in ("suite/dvc.yaml", "quickstart/dvc.yaml"):
+        assert {s.relpath for s in considered(graph, other)} == {other}
+
+
+@pytest.mark.parametrize("section", ["generate", "train"])
+def test_a_changed_key_reaches_only_its_readers_and_their_downstream(graph, section):
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    for key in params[section]:
+        hit = rerun(graph, f"{section}.{key}")
+        assert not {"source", "parse", "pose_noise"} & hit, f"{section}.{key}: {sorted(hit)}"
+        if section == "generate":
+            assert not {"train_source", "evaluate_source@D0", "evaluate_source@D1"} & hit
+
+
+def test_the_counts_of_two_common_ablations(graph):
+    selection = rerun(graph, "generate.selection")
+    main = {
+        f"{s}@{v}"
+        for s in ("generate", "coverage", "train", "evaluate", "export", "render")
+        for v in ("D0", "D1")
+    } | {"report"}
+    transfer = {s for s in selection if s.startswith("generate_transfer")}
+    assert selection == main | transfer
+    assert (
+        len(transfer) == 20
+    )  # 3 PyBullet tasks x 2 variants x 3 arms + StackCube x 2 on the xArm6
+    assert rerun(graph, "train.profile") == {
+        "train_source",
+        "train@D0",
+        "train@D1",
+        "evaluate_source@D0",
+        "evaluate_source@D1",
+        "evaluate@D0",
+        "evaluate@D1",
+        "report",
+    }
