@@ -80,3 +80,12 @@ def test_the_counts_of_two_common_ablations(graph):
         "evaluate@D1",
         "report",
     }
+
+
+@pytest.mark.parametrize(
+    "key",
+    ["generate.workers", "generate.executor", "train.workers", "evaluate.workers",
+     "evaluate.executor", "export.workers", "maniskill.lean_step", "ray.address"],
+)  # fmt: skip
+def test_a_key_that_changes_no_number_re_runs_nothing(graph, key):
+    assert rerun(graph, key) == set()
