@@ -67,7 +67,9 @@ def _close_progress_bars() -> None:
 def _run_stage(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="mimicgen-pipe",
-        description="MimicGen data generation as DVC stages; `dvc repro` runs them all.",
+        description="MimicGen data generation as DVC stages: `dvc repro` runs the default "
+        "pipeline, `dvc repro quickstart/dvc.yaml` a small one, `dvc repro suite/dvc.yaml` the "
+        "task suite.",
     )
     sub = parser.add_subparsers(dest="stage", required=True, metavar="STAGE")
     modules = {}

@@ -1,0 +1,132 @@
+"""The documentation: README.md stays short, says the test command CI runs, every relative
+link in README.md and docs/ leads to a file (and heading) the repository has, and every
+params key has its row in docs/stages-and-params.md."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import typing
+from pathlib import Path
+
+import pytest
+
+from mimicgen_pipe.params import Params
+
+REPO = Path(__file__).resolve().parents[1]
+README = REPO / "README.md"
+README_MAX_LINES = 200
+PAGES = [README, *sorted((REPO / "docs").rglob("*.md"))]
+
+FENCE = re.compile(r"^(```|~~~).*?^\1[^\n]*$", re.M | re.S)
+INLINE_CODE = re.compile(r"`[^`\n]*`")
+LINK = re.compile(r"!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
+HEADING = re.compile(r"^#{1,6}\s+(.+?)\s*#*\s*$", re.M)
+SCHEME = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*:")
+
+
+def _prose(text: str) -> str:
+    """``text`` without fenced code blocks and inline code, where links are not links."""
+    return INLINE_CODE.sub("", FENCE.sub("", text))
+
+
+def links(text: str) -> list[str]:
+    """The targets of the Markdown links and images in ``text``, outside code."""
+    return LINK.findall(_prose(text))
+
+
+def anchors(text: str) -> set[str]:
+    """The anchors GitHub gives the headings of ``text``: lower case, punctuation dropped,
+    spaces as hyphens, a repeated one numbered -1, -2, ..."""
+    seen: dict[str, int] = {}
+    out = set()
+    for heading in HEADING.findall(FENCE.sub("", text)):
+        slug = re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
+def broken_links(page: Path, root: Path = REPO) -> list[str]:
+    """Each relative link of ``page`` that leads outside ``root``, to no file, or to a
+    heading a Markdown file does not have, with why."""
+    broken = []
+    for target in links(page.read_text()):
+        if SCHEME.match(target):  # http(s), mailto: not a file of the repository
+            continue
+        path, _, anchor = target.partition("#")
+        dest = (page.parent / path).resolve() if path else page.resolve()
+        if not dest.is_relative_to(root.resolve()):
+            broken.append(f"{target}: outside {root}")
+        elif not dest.exists():
+            broken.append(f"{target}: no such file")
+        elif anchor and dest.suffix == ".md" and anchor not in anchors(dest.read_text()):
+            broken.append(f"{target}: no heading #{anchor} in {dest.name}")
+    return broken
+
+
+def test_the_link_check_finds_broken_links_and_only_those(tmp_path: Path) -> None:
+    (tmp_path / "other.md").write_text("# Other page\n\n## Policies (paper P.1)\n")
+    page = tmp_path / "page.md"
+    page.write_text(
+        "[ok](other.md) [ok](other.md#policies-paper-p1) [ok](#here) [web](https://example.org)\n"
+        "[gone](missing.md) [bad anchor](other.md#nowhere) [up](../x.md)\n"
+        "`[in code](also-missing.md)`\n```\n[in a block](block-missing.md)\n# not a heading\n```\n"
+        "## Here\n"
+    )
+    found = [b.split(": ")[0] for b in broken_links(page, root=tmp_path)]
+    assert found == ["missing.md", "other.md#nowhere", "../x.md"]
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
+def test_every_relative_link_resolves(page: Path) -> None:
+    assert broken_links(page) == []
+
+
+def test_readme_is_short() -> None:
+    lines = README.read_text().splitlines()
+    assert len(lines) <= README_MAX_LINES, f"README.md: {len(lines)} lines"
+
+
+def test_readme_gives_the_test_command_ci_runs() -> None:
+    """The command CI runs after setting up is a line of README.md, character for character,
+    inside a code block."""
+    ci = (REPO / ".ci" / "run").read_text().splitlines()
+    commands = [line.strip() for line in ci if "pytest" in line and '"not slow"' in line]
+    assert len(commands) == 1, f".ci/run: expected one 'not slow' test command, got {commands}"
+    blocks = "\n".join(m.group(0) for m in FENCE.finditer(README.read_text()))
+    assert commands[0] in blocks.splitlines()
+
+
+def params_keys(cls: type = Params) -> dict[str, list[str]]:
+    """Section -> its keys (a nested section's keys by their last name, e.g. train.cpu's
+    ``hidden`` under ``train``); the top-level keys under ``Top level``."""
+    out: dict[str, list[str]] = {}
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if dataclasses.is_dataclass(hints[f.name]):
+            out[f.name] = sorted(_leaves(hints[f.name]))
+        else:
+            out.setdefault("Top level", []).append(f.name)
+    return out
+
+
+def _leaves(cls: type) -> set[str]:
+    hints = typing.get_type_hints(cls)
+    leaves = set()
+    for f in dataclasses.fields(cls):
+        is_section = dataclasses.is_dataclass(hints[f.name])
+        leaves |= _leaves(hints[f.name]) if is_section else {f.name}
+    return leaves
+
+
+def test_every_params_key_has_a_row_in_stages_and_params() -> None:
+    text = (REPO / "docs" / "stages-and-params.md").read_text()
+    text = text[text.index("\n## params.yaml, section by section") :]  # not the stages
+    undocumented = []
+    for section, keys in params_keys().items():
+        part = re.search(rf"^### {re.escape(section)}\n(.*?)(?=^##|\Z)", text, re.M | re.S)
+        rows = set(re.findall(r"^\| `([^`]+)` \|", part.group(1), re.M)) if part else set()
+        undocumented += [f"{section}: {k}" for k in keys if k not in rows]
+    assert undocumented == []

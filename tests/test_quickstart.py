@@ -1,0 +1,58 @@
+"""The README's five-minute command, run as a newcomer runs it: `dvc repro
+quickstart/dvc.yaml` in a copy of the repository, giving a generated dataset, its DGR, a
+robomimic export and a report, with the numbers committed in quickstart/metrics/."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def repository_copy(dest: Path) -> Path:
+    """The files git would check out (tracked and new, not ignored), in a fresh git repo."""
+    listed = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=REPO, capture_output=True, check=True,
+    ).stdout.decode().split("\0")  # fmt: skip
+    for name in filter(None, listed):
+        if (REPO / name).is_file():
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(REPO / name, dest / name)
+    for sub in ("metrics", "plots", "report", "dvc.lock"):  # made by the run itself
+        path = dest / "quickstart" / sub
+        shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+    subprocess.run(["git", "init", "-q"], cwd=dest, check=True)
+    return dest
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(tmp_path):
+    work = repository_copy(tmp_path)
+    env = dict(os.environ, PYTHONPATH=str(work), PYTHONWARNINGS="ignore")
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env['PATH']}"
+    res = subprocess.run(
+        ["dvc", "repro", "quickstart/dvc.yaml"], cwd=work, env=env, capture_output=True, text=True
+    )
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    q = work / "quickstart"
+    ran = json.loads((q / "metrics/generate_stack_cube_D0.json").read_text())
+    committed = json.loads((REPO / "quickstart/metrics/generate_stack_cube_D0.json").read_text())
+    for key in ("attempts", "successes", "dgr", "run_id"):  # generation is bit-reproducible
+        assert ran[key] == committed[key], key
+    summary = json.loads((q / "report/summary.json").read_text())
+    assert summary["dgr_D0"] == round(ran["dgr"], 1)
+    assert "DGR" in (q / "report/report.html").read_text()
+
+    import h5py
+
+    with h5py.File(q / "data/export/stack_cube_D0/demos.hdf5") as f:
+        assert len(f["data"]) == ran["successes"] == 20
