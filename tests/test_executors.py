@@ -234,12 +234,14 @@ def kill_after_first_block(work: Path, args: list[str], blocks: Path) -> None:
 
 
 @pytest.mark.sim
+@pytest.mark.slow
 def test_planted_and_copied_blocks_are_discarded_never_unpickled(work, tmp_path):
-    """In the work directory of a killed run (its key file right): a block file of the
-    previous format (SHA-256 + pickle) and an .npz holding a pickled object array, both
-    crafted to run a command when unpickled, a pickle named like a block, and block 0
-    copied over block 1. The same command resumes: nothing runs, each file is reported and
-    discarded, and the stores equal the uninterrupted run's."""
+    """(Its small form, block files read without unpickling, is in
+    tests/test_resume_blocks.py.) In the work directory of a killed run (its key file right):
+    a block file of the previous format (SHA-256 + pickle) and an .npz holding a pickled
+    object array, both crafted to run a command when unpickled, a pickle named like a block,
+    and block 0 copied over block 1. The same command resumes: nothing runs, each file is
+    reported and discarded, and the stores equal the uninterrupted run's."""
     (work / "planted.yaml").write_text(PARAMS + "generate: {workers: 1, seed: 3}\n")
     args = ["generate", "--params", "planted.yaml", "--variant", "D0", "--parsed",
             "data/parsed/stack.zarr", "--attempts", str(ATTEMPTS), "--out",
