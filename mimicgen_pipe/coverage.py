@@ -227,12 +227,9 @@ def plot_heatmaps(
     """Heat maps of initial object positions (PNG): per object, the attempted scenes, the
     generated (kept) ones and the share kept per cell, with the coverage bins' edges drawn
     over them. Poses are (E, n_objects, 4, 4) world frame; axes are world x, y [m]."""
-    import warnings
+    from mimicgen_pipe.figures import quiet_matplotlib_import
 
-    with warnings.catch_warnings():
-        # matplotlib 3.9 still calls pyparsing's pre-3.3 names, which warn on import
-        warnings.filterwarnings("ignore", category=DeprecationWarning, module="pyparsing")
-        warnings.filterwarnings("ignore", message=".*deprecated - use", category=UserWarning)
+    with quiet_matplotlib_import():
         import matplotlib
 
         matplotlib.use("Agg")  # files only, no display

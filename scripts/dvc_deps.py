@@ -230,13 +230,13 @@ def main(argv: list[str] | None = None) -> int:
         else:
             old_deps = _code_deps(text)
             new_deps = _code_deps(new)
+            differ = []
             for stage in sorted(set(old_deps) | set(new_deps)):
                 extra = sorted(set(old_deps.get(stage, ())) - set(new_deps.get(stage, ())))
                 missing = sorted(set(new_deps.get(stage, ())) - set(old_deps.get(stage, ())))
                 if extra or missing:
-                    stale.append(f"{name}: {stage}: missing {missing}, not imported {extra}")
-            if not stale:
-                stale.append(f"{name}: code deps out of order")
+                    differ.append(f"{name}: {stage}: missing {missing}, not imported {extra}")
+            stale += differ or [f"{name}: code deps out of order"]
     for line in stale:
         print(line, file=sys.stderr)
     if stale:

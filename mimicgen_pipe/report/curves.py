@@ -14,7 +14,6 @@ import contextlib
 import csv
 import io
 import itertools
-import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +23,7 @@ import numpy as np
 
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.figures import quiet_matplotlib_import
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Image, Text
 from mimicgen_pipe.report.inputs import MetricsSet, evaluated, trained
@@ -115,10 +115,7 @@ def read_curves(
 def _figure(out: io.BytesIO, title: str, panels: int) -> Iterator[list[Axes]]:
     """``panels`` axes to draw on, PANELS_PER_ROW to a row; when the block ends, the figure
     is written to ``out`` as PNG."""
-    with warnings.catch_warnings():
-        # matplotlib 3.9 still calls pyparsing's pre-3.3 names, which warn on import
-        warnings.filterwarnings("ignore", category=DeprecationWarning, module="pyparsing")
-        warnings.filterwarnings("ignore", message=".*deprecated - use", category=UserWarning)
+    with quiet_matplotlib_import():
         import matplotlib.style
         from matplotlib.figure import Figure
 
