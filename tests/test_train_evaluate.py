@@ -24,7 +24,7 @@ generate: {num_demos: 4, max_attempts: 12, workers: 1, seed: 7}
 train:
   num_demos: 4
   cpu: {hidden: 16, layers: 1, seq_len: 10, batch_size: 8, lr: 0.001, epochs: 2,
-        steps_per_epoch: 5, checkpoint_every: 1, seeds: [0, 1]}
+        steps_per_epoch: 5, checkpoint_every: 1, seeds: [0, 1], threads: 1}
 evaluate: {episodes: 2, every_epochs: 1, workers: 1}
 """
 
