@@ -16,9 +16,11 @@ env is made) and defines
   demonstrator or from a file format of its own (mimicgen_pipe.source_files reads robomimic
   files on every back end);
 
-and has a module ``render.py`` whose ``Renderer(task, robot, width, height)`` draws stored
-states (mimicgen_pipe.video.make_renderer, for the render stage alone). Back ends draw the
-scenes of their reset variants with mimicgen_pipe.reset_variants.
+- ``cameras(robot)``: the observation cameras (of CAMERAS) that ``robot`` has there;
+
+and has a module ``render.py`` whose ``Renderer(task, robot, width, height, cameras)`` draws
+stored states (mimicgen_pipe.video.make_renderer, for the render and observe stages). Back
+ends draw the scenes of their reset variants with mimicgen_pipe.reset_variants.
 """
 
 from __future__ import annotations
@@ -33,6 +35,9 @@ from threadpoolctl import threadpool_limits
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.taskspec import TaskSpec
+
+# the observation cameras a back end may have (their poses: envs/_cameras.py)
+CAMERAS = ("agentview", "eye_in_hand")
 
 
 def backend_package(backend: str) -> types.ModuleType:
@@ -88,6 +93,17 @@ def check_obs_keys(spec: TaskSpec, keys, where: str) -> None:
 def check_robot(backend: str, robot: str) -> None:
     """InputError for an arm ``backend`` does not have, or whose URDF files are missing."""
     backend_package(backend).check_robot(robot)
+
+
+def check_cameras(backend: str, robot: str, cameras, where: str) -> None:
+    """InputError naming ``where`` when a camera is not one ``robot`` has on ``backend``."""
+    known = backend_package(backend).cameras(robot)
+    unknown = [c for c in cameras if c not in known]
+    if unknown:
+        raise InputError(
+            f"{where}: {', '.join(map(repr, unknown))} not a camera of {robot} on {backend} "
+            f"(known: {', '.join(known) or 'none'})"
+        )
 
 
 def make_env(backend: str, task: str, robot: str = "panda", lean_step: bool = True):

@@ -25,8 +25,10 @@ STAGES = {
     "coverage": "support coverage of a generated dataset's initial scenes, with heat maps",
     "train": "train BC-RNN policies on the source demos or a generated dataset",
     "evaluate": "roll out a training run's checkpoints in one reset variant",
+    "evaluate_external": "roll out a policy trained elsewhere (robomimic, LeRobot) likewise",
     "export": "a generated store as robomimic HDF5, LeRobot and ManiSkill trajectories",
     "render": "MP4s and GIFs of the first kept and failed generated episodes, captioned",
+    "observe": "camera images of a store's episodes, rendered from their stored states",
     "report": "report.md and report.html: our metrics beside the paper's, with ablations",
 }
 

@@ -113,7 +113,9 @@ def checkpoints_to_evaluate(
 class ClosedLoopPolicy(Protocol):
     """A policy acting in closed loop, one step at a time: ``reset(seed)`` at each episode
     start, then ``act(obs)``, the action for the observation dict of
-    mimicgen_pipe.observations (mimicgen_pipe.policy.RolloutPolicy is one)."""
+    mimicgen_pipe.observations (mimicgen_pipe.policy.RolloutPolicy is one; so is
+    mimicgen_pipe.external.ExternalPolicy, which also has a ``close()`` that the evaluator
+    calls when it is done with it)."""
 
     def reset(self, seed: int) -> None: ...
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray: ...
@@ -133,13 +135,19 @@ def rollout(
     variant: str,
     horizon: int,
     objects: Sequence[str],
+    cameras: Any = None,
 ) -> Rollout:
     """One episode: reset the scene from ``seed``, act until the task succeeds or ``horizon``
-    steps have run."""
+    steps have run. ``cameras``: for a policy that reads images, a renderer of the env's
+    state (mimicgen_pipe.video.make_renderer), whose images join the observation as
+    ``<camera>_image``, the store's ``obs/<camera>_image`` (the same picture of the same
+    state as the observe stage takes)."""
     env.reset(seed=seed, variant=variant)
     policy.reset(seed)
     for t in range(horizon):
         obs = low_dim_observation(env.eef_pose(), env.gripper_state(), env.object_poses(), objects)
+        if cameras is not None:
+            obs |= {f"{c}_image": im for c, im in cameras.images(env.get_state()).items()}
         env.step(policy.act(obs))
         if env.is_success():
             return Rollout(seed, True, t + 1)
@@ -148,16 +156,42 @@ def rollout(
 
 @dataclass(frozen=True)
 class EvalJob:
-    """Everything a worker needs: how to make its env and to load a policy by name."""
+    """Everything a worker needs: how to make its env and to load a policy by name; for a
+    policy that reads images, how to make its cameras' renderer (see :func:`rollout`)."""
 
     make_env: Callable[[], Env]
     load_policy: Callable[[str], ClosedLoopPolicy]
     variant: str
     horizon: int
     objects: tuple[str, ...]
+    make_cameras: Callable[[], Any] | None = None
 
 
-_WORKER: tuple[EvalJob, Env] | None = None
+@dataclass
+class _Worker:
+    """A worker's env, and the policy it rolled out last (kept for its next block: an
+    external policy's server starts once per worker, not once per block)."""
+
+    job: EvalJob
+    env: Env
+    cameras: Any = None
+    policy: tuple[str, ClosedLoopPolicy] | None = None
+
+    def load(self, name: str) -> ClosedLoopPolicy:
+        if self.policy is None or self.policy[0] != name:
+            self.close_policy()
+            self.policy = (name, self.job.load_policy(name))
+        return self.policy[1]
+
+    def close_policy(self) -> None:
+        if self.policy is not None:
+            close = getattr(self.policy[1], "close", None)
+            self.policy = None
+            if close is not None:
+                close()
+
+
+_WORKER: _Worker | None = None
 
 
 def _init_worker(job: EvalJob) -> None:
@@ -165,23 +199,26 @@ def _init_worker(job: EvalJob) -> None:
     import torch
 
     torch.set_num_threads(1)  # one process per core; a small LSTM gains nothing from threads
-    _WORKER = (job, job.make_env())
+    cameras = job.make_cameras() if job.make_cameras is not None else None
+    _WORKER = _Worker(job, job.make_env(), cameras)
 
 
 def _run_block(task: tuple[str, list[int]]) -> tuple[str, list[Rollout]]:
     assert _WORKER is not None
-    job, env = _WORKER
+    job, env, cameras = _WORKER.job, _WORKER.env, _WORKER.cameras
     name, seeds = task
-    policy = job.load_policy(name)
+    policy = _WORKER.load(name)
     env.rebuild()
-    return name, [rollout(env, policy, s, job.variant, job.horizon, job.objects) for s in seeds]
+    return name, [
+        rollout(env, policy, s, job.variant, job.horizon, job.objects, cameras) for s in seeds
+    ]
 
 
 def run_evaluation(
     job: EvalJob, policies: Sequence[str], seeds: Sequence[int], executor: Executor
 ) -> Iterator[tuple[str, list[Rollout]]]:
     """Roll out every policy (by name) from every seed; yields (policy, rollouts of one
-    block) as blocks finish, in order."""
+    block) as blocks finish, in order. Policies with a ``close()`` are closed once done."""
     tasks = [
         (name, list(seeds[i : i + EPISODES_PER_BLOCK]))
         for name in policies
@@ -192,6 +229,32 @@ def run_evaluation(
         yield from results
     finally:
         results.close()
+        if _WORKER is not None:  # the blocks ran in this process (one worker)
+            _WORKER.close_policy()
+
+
+def evaluate_policies(
+    job: EvalJob, names: Sequence[str], seeds: Sequence[int], executor: Executor, label: str
+) -> tuple[dict[str, list[Rollout]], float]:
+    """Roll out every policy (by name, loaded by ``job.load_policy``) from every seed
+    (:func:`run_evaluation`) under a progress bar named ``label``. Returns each policy's
+    rollouts in seed order and the wall time [s]; an Interrupted on the way up says how
+    many episodes had run."""
+    out: dict[str, list[Rollout]] = {n: [] for n in names}
+    t0 = time.perf_counter()
+    bar = tqdm(total=len(names) * len(seeds), desc=label, unit="episode")
+    results = run_evaluation(job, names, seeds, executor)
+    try:
+        for name, rollouts in results:
+            out[name] += rollouts
+            bar.update(len(rollouts))
+    except Interrupted as exc:
+        exc.detail = f"after {bar.n} of {bar.total} episodes"
+        raise
+    finally:
+        results.close()
+        bar.close()
+    return out, time.perf_counter() - t0
 
 
 def evaluate_checkpoints(
@@ -201,28 +264,19 @@ def evaluate_checkpoints(
     executor: Executor,
     label: str,
 ) -> tuple[dict[int, list[tuple[int, float]]], float]:
-    """Roll out every checkpoint from every seed (:func:`run_evaluation`, each checkpoint
-    loaded by ``job.load_policy`` from its path) under a progress bar named ``label``.
-    Returns the success rates [%], training seed -> [(epoch, rate)] in epoch order, and the
-    wall time [s]; an Interrupted on the way up says how many episodes had run."""
-    names = [str(c) for c in checkpoints.paths]
-    success: dict[str, list[bool]] = {n: [] for n in names}
-    t0 = time.perf_counter()
-    bar = tqdm(total=len(names) * len(seeds), desc=label, unit="episode")
-    results = run_evaluation(job, names, seeds, executor)
-    try:
-        for ckpt, rollouts in results:
-            success[ckpt] += [r.success for r in rollouts]
-            bar.update(len(rollouts))
-    except Interrupted as exc:
-        exc.detail = f"after {bar.n} of {bar.total} episodes"
-        raise
-    finally:
-        results.close()
-        bar.close()
-    wall = time.perf_counter() - t0
+    """Roll out every checkpoint from every seed (:func:`evaluate_policies`, each checkpoint
+    loaded by ``job.load_policy`` from its path). Returns the success rates [%], training
+    seed -> [(epoch, rate)] in epoch order, and the wall time [s]."""
+    rollouts, wall = evaluate_policies(
+        job, [str(c) for c in checkpoints.paths], seeds, executor, label
+    )
     per_run = {
-        seed: [(checkpoints.epochs[c], 100.0 * float(np.mean(success[str(c)]))) for c in ckpts]
+        seed: [(checkpoints.epochs[c], success_rate(rollouts[str(c)])) for c in ckpts]
         for seed, ckpts in checkpoints.runs.items()
     }
     return per_run, wall
+
+
+def success_rate(rollouts: Sequence[Rollout]) -> float:
+    """Share of successful episodes [%]."""
+    return 100.0 * float(np.mean([r.success for r in rollouts]))

@@ -38,6 +38,12 @@ def generated_store(task: str, variant: str, failed: bool = False) -> Path:
     return Path("data/generated") / f"{task}_{variant}{'_failed' if failed else ''}.zarr"
 
 
+def observed_store(task: str, variant: str) -> Path:
+    """The observe stage's store: a generated (or other) store's first episodes with camera
+    images (data/obs/<camera>_image)."""
+    return Path("data/observed") / f"{task}_{variant}.zarr"
+
+
 def failed_store(kept: Path) -> Path:
     """Where a generate run's failed attempts lie: <name>_failed.zarr beside its kept store
     <name>.zarr (<name>_failed beside a kept store named without .zarr): never the kept
@@ -64,6 +70,13 @@ def policy_dir(task: str, data: str) -> Path:
 
 def plot_file(stage: str, task: str, name: str) -> Path:
     return Path("plots") / f"{stage}_{task}_{name}.csv"
+
+
+def external_evaluation_files(task: str, name: str) -> tuple[Path, Path]:
+    """The metrics JSON and per-episode CSV of an evaluation of a policy trained elsewhere
+    (``evaluate --policy``), apart from the pipeline's own: the report reads neither."""
+    stem = f"evaluate_{task}_{name}"
+    return Path("metrics/external") / f"{stem}.json", Path("plots/external") / f"{stem}.csv"
 
 
 def export_dir(store_name: str) -> Path:

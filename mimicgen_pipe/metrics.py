@@ -32,7 +32,7 @@ import numpy as np
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.outputs import temporary_name
 
-STAGES = ("source", "generate", "coverage", "train", "evaluate", "export", "render")
+STAGES = ("source", "generate", "coverage", "train", "evaluate", "export", "render", "observe")
 IDENTITY_FIELDS = ("stage", "task", "backend", "variant", "robot", "data", "purpose")
 # generate.mode -> the purpose of a generate run
 GENERATE_PURPOSE = {"guarantee": "policy_data", "fixed_attempts": "dgr"}

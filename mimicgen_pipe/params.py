@@ -159,6 +159,20 @@ class RenderParams:
 
 
 @dataclass(frozen=True)
+class ObserveParams:
+    """cameras: the camera images the observe stage renders from each step's stored state
+    (envs/_cameras.py: agentview, eye_in_hand). height, width: image size [px] (84: the
+    paper's). episodes: the first N episodes of the store (null: all). workers: renderer
+    processes (the images are the same for any number)."""
+
+    cameras: list[str] = field(default_factory=lambda: ["agentview", "eye_in_hand"])
+    height: int = 84
+    width: int = 84
+    episodes: int | None = None
+    workers: int = 2
+
+
+@dataclass(frozen=True)
 class RayParams:
     """address: the Ray cluster that stages with ``executor: ray`` run on (``auto``,
     or the GCS's ``host:port``; Ray's token authentication on, see docs/scale-out.md);
@@ -228,6 +242,7 @@ class Params:
     suite: SuiteParams = field(default_factory=SuiteParams)
     export: ExportParams = field(default_factory=ExportParams)
     render: RenderParams = field(default_factory=RenderParams)
+    observe: ObserveParams = field(default_factory=ObserveParams)
     ray: RayParams = field(default_factory=RayParams)
     maniskill: ManiSkillParams = field(default_factory=ManiSkillParams)
 
@@ -269,6 +284,10 @@ _RANGES: dict[str, tuple[float, float]] = {
     "render.episodes": (0, 1000),
     "render.width": (16, 4096),
     "render.height": (16, 4096),
+    "observe.height": (1, 4096),
+    "observe.width": (1, 4096),
+    "observe.episodes": (1, 10_000_000),
+    "observe.workers": (1, 256),
     "transfer.attempts": (1, 10_000_000),
     "suite.attempts": (1, 10_000_000),
     "suite.action_noise": (0.0, 1.0),
@@ -343,6 +362,7 @@ _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "source.from_file": _non_empty_path,
     "generate.variants": _non_empty_unique,
     "train.obs_keys": _non_empty_unique,
+    "observe.cameras": _non_empty_unique,
     # each training seed is its own run, written under its own seed<k>/ folder
     "train.cpu.seeds": _non_empty_unique,
     "train.paper.seeds": _non_empty_unique,
@@ -417,7 +437,7 @@ def _build(cls: type, raw: Any, where: str, path: Path) -> Any:
             if not fnmatch.fnmatchcase(key, pattern):
                 continue
             for v in value if isinstance(value, list) else [value]:
-                if not lo <= v <= hi:
+                if v is not None and not lo <= v <= hi:  # None: a key's "none given"
                     each = "each entry " if isinstance(value, list) else ""
                     raise InputError(
                         f"{path}: {key}: expected {each}a value in [{lo}, {hi}], got {v!r}"
@@ -480,7 +500,11 @@ def as_dict(params: Any) -> dict[str, Any]:
 
 # Keys that cannot change a stage's data (process counts), left out of what stores record and
 # of the params dvc.yaml declares for the stage, so that changing them re-runs nothing.
-_NOT_DATA = {"generate": ("workers", "executor", "variants"), "train": ("workers",)}
+_NOT_DATA = {
+    "generate": ("workers", "executor", "variants"),
+    "train": ("workers",),
+    "observe": ("workers",),
+}
 
 
 def training_params(train: TrainParams) -> dict[str, Any]:
@@ -492,13 +516,19 @@ def training_params(train: TrainParams) -> dict[str, Any]:
     return t
 
 
-def data_params(params: Params, stage: Literal["source", "generate"]) -> dict[str, Any]:
+def data_params(params: Params, stage: Literal["source", "generate", "observe"]) -> dict[str, Any]:
     """The params that shape a stage's output store, as recorded in its attrs: exactly the
     keys dvc.yaml declares for the stage (so the same declared params give the same bytes).
     source: task, backend, source. generate: generate without worker counts and the variant
-    list (and without num_demos in fixed_attempts mode, where it is unused), pose_noise."""
+    list (and without num_demos in fixed_attempts mode, where it is unused), pose_noise.
+    observe: observe without its worker count."""
     if stage == "source":
         return {"task": params.task, "backend": params.backend, "source": as_dict(params.source)}
+    if stage == "observe":
+        o = as_dict(params.observe)
+        for key in _NOT_DATA["observe"]:
+            del o[key]
+        return {"observe": o}
     g = as_dict(params.generate)
     for key in _NOT_DATA["generate"] + (("num_demos",) if g["mode"] == "fixed_attempts" else ()):
         del g[key]

@@ -21,6 +21,23 @@ def first_rise(signal: np.ndarray, after: int) -> int | None:
     return int(rises[0]) if rises.size else None
 
 
+def subtask_at_steps(
+    signals: Mapping[str, np.ndarray], subtasks: Sequence[SubtaskSpec], length: int
+) -> np.ndarray:
+    """(length,) int64: the subtask each step belongs to, as the generator walks them: subtask i
+    ends at the first rise of its term signal after subtask i-1 ended (an episode that fails
+    stays in the subtask whose signal never rose)."""
+    out = np.zeros(length, np.int64)
+    end: int | None = 0
+    for i, sub in enumerate(subtasks[:-1]):
+        key = f"subtask_signals/{sub.term_signal}"
+        end = first_rise(signals[key], end) if key in signals else None
+        if end is None:
+            break
+        out[end:] = i + 1
+    return out
+
+
 def split_into_segments(
     signals: Mapping[str, np.ndarray], subtasks: Sequence[SubtaskSpec]
 ) -> np.ndarray:

@@ -4,13 +4,17 @@ Layout: ``data/<key>`` (N_steps, ...) concatenated over episodes; ``meta/episode
 (N_episodes,) cumulative exclusive ends; ``meta/episodes/<key>`` (N_episodes, ...);
 group attributes carry the schema version, task, variant, back end and params used.
 Poses are stored as (..., 7) [x, y, z, qw, qx, qy, qz], metres, in the world frame.
-Each array is one chunk, so a store is a few dozen files for DVC to hash. Every chunk is
-written (also one that holds only zeros) and carries a crc32c checksum, so a missing or
-damaged chunk is an error when read, never a silent array of zeros.
+Each array is one chunk, so a store is a few dozen files for DVC to hash, except camera
+images (``data/obs/<camera>_image``, the observe stage's), chunked along the steps (about
+ROW_CHUNK_BYTES each), which are written block by block as they come and read chunk by
+chunk. Every chunk is written (also one that holds only zeros) and carries a crc32c
+checksum, so a missing or damaged chunk is an error when read, never a silent array of
+zeros.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from collections.abc import Iterator, Mapping, Sequence
@@ -32,6 +36,17 @@ SCHEMA_VERSION = 2  # 2: crc32c on every chunk, every chunk written, attrs.kind
 STORE_KINDS = ("source", "parsed", "generated", "failed")
 # zstd as zarr's default, then a checksum of the compressed bytes
 _CODECS = (ZstdCodec(level=0, checksum=False), Crc32cCodec())
+
+
+def image_key(camera: str) -> str:
+    """The data key of ``camera``'s images: (N_steps, H, W, 3) uint8 RGB."""
+    return f"obs/{camera}_image"
+
+
+def store_cameras(attrs: Mapping[str, Any]) -> dict[str, tuple[int, int]]:
+    """Camera name -> (height, width) [px] of a store's images, in camera order (its attrs
+    ``cameras``); empty for a store without images."""
+    return {c: (int(v["height"]), int(v["width"])) for c, v in (attrs.get("cameras") or {}).items()}
 
 
 class _Episodes:
@@ -129,6 +144,109 @@ def write_store(
         for key, value in episodes.items():
             _write_array(ep, key, as_stored(value))
     return Path(path)
+
+
+# A step array chunked along its steps holds about this many bytes per chunk: an episode's
+# rows are read by decoding one or two chunks, and a store of 1000 demos of 84x84 images is
+# a few thousand files.
+ROW_CHUNK_BYTES = 4 << 20
+
+
+def row_chunk_steps(row_shape: Sequence[int], dtype: np.dtype | type) -> int:
+    """Steps per chunk of a step array of rows ``row_shape`` chunked along its steps."""
+    return max(1, ROW_CHUNK_BYTES // (np.dtype(dtype).itemsize * int(np.prod(row_shape))))
+
+
+class RowWriter:
+    """Writes the (n_rows, *row_shape) array ``name`` of ``group`` in chunks of
+    :func:`row_chunk_steps` rows, from blocks of rows given in order (:meth:`append`): it holds
+    at most one chunk, so a large array never needs to be in memory whole."""
+
+    def __init__(
+        self, group: zarr.Group, name: str, n_rows: int, row_shape: Sequence[int], dtype
+    ) -> None:
+        self.name, self.n_rows = name, n_rows
+        rows = row_chunk_steps(row_shape, dtype)
+        self._array = group.create_array(
+            name,
+            shape=(n_rows, *row_shape),
+            dtype=dtype,
+            chunks=(rows, *(max(1, s) for s in row_shape)),
+            compressors=_CODECS,
+            config={"write_empty_chunks": True},
+        )
+        self._buffer = np.empty((rows, *row_shape), dtype)
+        self._held = 0  # rows in the buffer
+        self._written = 0  # rows written to the array
+
+    def append(self, block: np.ndarray) -> None:
+        """The next rows, (m, *row_shape)."""
+        block = np.asarray(block)
+        if block.shape[1:] != self._buffer.shape[1:]:
+            raise ValueError(
+                f"{self.name}: rows {block.shape[1:]}, expected {self._buffer.shape[1:]}"
+            )
+        if self._written + self._held + len(block) > self.n_rows:
+            raise ValueError(f"{self.name}: more than its {self.n_rows} rows")
+        done = 0
+        while done < len(block):
+            m = min(len(block) - done, len(self._buffer) - self._held)
+            self._buffer[self._held : self._held + m] = block[done : done + m]
+            self._held, done = self._held + m, done + m
+            if self._held == len(self._buffer):
+                self._flush()
+
+    def _flush(self) -> None:
+        end = self._written + self._held
+        self._array[self._written : end] = self._buffer[: self._held]
+        self._written, self._held = end, 0
+
+    def close(self) -> None:
+        """Write the last chunk; every row must have been given."""
+        if self._held:
+            self._flush()
+        if self._written != self.n_rows:
+            raise ValueError(f"{self.name}: {self._written} of {self.n_rows} rows given")
+
+
+@dataclass(frozen=True)
+class StoreWriter:
+    """The groups of a store being written (:func:`store_writer`)."""
+
+    data: zarr.Group
+    episodes: zarr.Group
+    n_steps: int
+
+    def array(self, key: str, value: np.ndarray) -> None:
+        """``data/<key>``, (N_steps, ...), one chunk (4x4 poses stored as pq rows)."""
+        _write_array(self.data, key, as_stored(value))
+
+    def episode_field(self, key: str, value: np.ndarray) -> None:
+        """``meta/episodes/<key>``, (N_episodes, ...), one chunk."""
+        _write_array(self.episodes, key, as_stored(value))
+
+    def rows(self, key: str, row_shape: Sequence[int], dtype) -> RowWriter:
+        """A writer of ``data/<key>`` chunked along its steps, block by block."""
+        return RowWriter(self.data, key, self.n_steps, row_shape, dtype)
+
+
+@contextlib.contextmanager
+def store_writer(
+    path: str | os.PathLike, kind: str, episode_ends: np.ndarray, attrs: Mapping[str, Any]
+) -> Iterator[StoreWriter]:
+    """A store at ``path`` written array by array (as :func:`write_store` writes, and
+    atomically: renamed into place when the block completes, nothing when it raises), with
+    ``episode_ends`` (N_episodes,) cumulative exclusive ends."""
+    if kind not in STORE_KINDS:
+        raise ValueError(f"store kind {kind!r}: expected one of {STORE_KINDS}")
+    ends = np.asarray(episode_ends, np.int64)
+    with atomic_directory(path) as tmp:
+        root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        root.attrs.update({"schema_version": SCHEMA_VERSION, **attrs, "kind": kind})
+        data = root.create_group("data")
+        meta = root.create_group("meta")
+        _write_array(meta, "episode_ends", ends)
+        yield StoreWriter(data, meta.create_group("episodes"), int(ends[-1]) if len(ends) else 0)
 
 
 def _read_group(path: Path, group: zarr.Group, prefix: str) -> dict[str, np.ndarray]:
@@ -460,6 +578,11 @@ def _iter_rows(
     verified first, over the whole chunk file, also when only a part of it is decoded."""
     _check_chunks(path, key, member)
     chunk = _chunk_file(member)
+    steps = tuple(getattr(member.metadata.chunk_grid, "chunk_shape", ()))
+    if chunk is None and member.ndim and steps[1:] == tuple(member.shape[1:]):
+        # chunked along the steps (camera images): decode only the chunks holding the rows
+        yield from _iter_chunked_rows(path, key, member, steps[0], ranges)
+        return
     if chunk is None:  # another layout: decode the whole array
         whole = _read_array(path, key, member)
         for start, end in ranges:
@@ -511,3 +634,21 @@ def _iter_rows(
     finally:
         # the stream's decoding buffers come from Arrow's pool, which keeps freed memory
         pa.default_memory_pool().release_unused()
+
+
+def _iter_chunked_rows(
+    path: Path, key: str, member: zarr.Array, rows: int, ranges: Sequence[Sequence[int]]
+) -> Iterator[tuple[int, np.ndarray]]:
+    """(first row, rows) blocks of the row ranges of an array chunked along its steps in
+    chunks of ``rows`` steps: one block per chunk a range overlaps, each chunk's checksum
+    verified as it is decoded."""
+    for start, end in ranges:
+        pos = start
+        while pos < end:
+            stop = min(end, (pos // rows + 1) * rows)
+            try:
+                block = member[pos:stop]
+            except Exception as exc:  # zarr raises ValueError/RuntimeError by codec
+                raise _damaged(path, key, exc) from exc
+            yield pos, block
+            pos = stop

@@ -1,16 +1,16 @@
-"""Videos of stored episodes: captions, MP4 and GIF writing, and which subtask each step is
-in. Frames are (H, W, 3) uint8 RGB, rendered by the back ends (make_renderer)."""
+"""Videos of stored episodes: captions, MP4 and GIF writing. Frames are (H, W, 3) uint8 RGB,
+rendered by the back ends (make_renderer)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
 from tqdm import tqdm
 
-from mimicgen_pipe.segments import first_rise
+from mimicgen_pipe.segments import subtask_at_steps
 from mimicgen_pipe.store import EpisodeStore
 from mimicgen_pipe.taskspec import SubtaskSpec
 
@@ -23,11 +23,20 @@ KEPT_RGB, FAILED_RGB, TEXT_RGB, BAND_RGB = (
 )
 
 
-def make_renderer(backend: str, task: str, robot: str, width: int, height: int):
-    """A renderer of stored states of ``task`` on ``backend``, envs/<backend>/render.py's
-    ``Renderer``: ``.frame(state)`` gives an (height, width, 3) uint8 RGB image on the CPU,
-    ``.close()``. Imported here, by the render stage alone, so that no other stage depends
-    on a renderer."""
+def make_renderer(
+    backend: str,
+    task: str,
+    robot: str,
+    width: int,
+    height: int,
+    cameras: Sequence[str] = ("video",),
+):
+    """A renderer of stored states of ``task`` on ``backend`` from ``cameras`` (``video``,
+    the render stage's view, or the observation cameras of envs/_cameras.py),
+    envs/<backend>/render.py's ``Renderer``: ``.images(state)`` gives camera -> (height,
+    width, 3) uint8 RGB image on the CPU, ``.frame(state)`` the first camera's, ``.close()``.
+    Imported here, by the render and observe stages alone, so that no other stage depends on
+    a renderer."""
     import envs
 
     envs.task_spec(backend, task)
@@ -36,24 +45,7 @@ def make_renderer(backend: str, task: str, robot: str, width: int, height: int):
         from envs.maniskill.render import Renderer
     else:
         from envs.pybullet.render import Renderer
-    return Renderer(task, robot, width, height)
-
-
-def subtask_at_steps(
-    signals: Mapping[str, np.ndarray], subtasks: Sequence[SubtaskSpec], length: int
-) -> np.ndarray:
-    """(length,) int: the subtask each step belongs to, as the generator walks them: subtask i
-    ends at the first rise of its term signal after subtask i-1 ended (an episode that fails
-    stays in the subtask whose signal never rose)."""
-    out = np.zeros(length, np.int64)
-    end: int | None = 0
-    for i, sub in enumerate(subtasks[:-1]):
-        key = f"subtask_signals/{sub.term_signal}"
-        end = first_rise(signals[key], end) if key in signals else None
-        if end is None:
-            break
-        out[end:] = i + 1
-    return out
+    return Renderer(task, robot, width, height, cameras)
 
 
 def episode_frames(

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Sets up a fresh machine: the Vulkan driver SAPIEN needs, a virtualenv at .venv
-# and the pinned Python dependencies (requirements.txt). Idempotent.
+# and the pinned Python dependencies (requirements.txt); for the tests, a second virtualenv at
+# .venv-learners with robomimic's and lerobot's trainers, and FFmpeg. Idempotent.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -52,21 +53,34 @@ install_venv() {
   pip_quiet install --no-deps -e .
 }
 
-install_lerobot_check_venv() {
-  # A second venv, for the tests only: lerobot's own dataset class reads our LeRobot export
-  # there. lerobot 0.4.4 needs numpy >= 2 (our simulators need numpy < 2) and a torch below
-  # ours, so it gets its own packages (tests/lerobot/requirements.txt, exact) and is
-  # installed --no-deps; a stub stands in for torchvision (no CPU build for torch 2.13).
+install_ffmpeg() {
+  # torchcodec, lerobot's video decoder in .venv-learners, loads the system's FFmpeg libraries.
+  if ldconfig -p 2>/dev/null | grep 'libavdevice\.so\.' >/dev/null; then return; fi
+  if command -v apt-get >/dev/null; then
+    local sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo"
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends \
+      ffmpeg >/dev/null
+  else
+    echo "setup: no FFmpeg libraries found: the LeRobot training test decodes video with them;" >&2
+    echo "  install FFmpeg 4-8 with its shared libraries (libavcodec, libavdevice, ...)." >&2
+  fi
+}
+
+install_learners_venv() {
+  # A second venv, for the tests only: robomimic's and lerobot's own trainers train on our
+  # exports there. Its packages are exact and installed --no-deps
+  # (tests/learners/requirements.txt says why); --isolated so that they come from PyPI itself,
+  # not from a local CPU torch wheel that pip's configuration may point at.
   local py=${PYTHON:-python3.11}
   command -v "$py" >/dev/null || py=python3
-  [ -x .venv-lerobot/bin/python ] || "$py" -m venv .venv-lerobot
-  local pip=(.venv-lerobot/bin/pip -q --disable-pip-version-check)
-  "${pip[@]}" install "torch==2.13.0" 2>&1 | { grep -v '^WARNING: Location' || true; }
-  "${pip[@]}" install -r tests/lerobot/requirements.txt 2>&1 | { grep -v '^WARNING: Location' || true; }
-  "${pip[@]}" install --no-deps "lerobot==0.4.4" 2>&1 | { grep -v '^WARNING: Location' || true; }
+  [ -x .venv-learners/bin/python ] || "$py" -m venv .venv-learners
+  .venv-learners/bin/pip -q --disable-pip-version-check --isolated install --no-deps \
+    -r tests/learners/requirements.txt
 }
 
 install_vulkan
 install_venv
-install_lerobot_check_venv
+install_ffmpeg
+install_learners_venv
 echo "setup: done (.venv ready; activate with: source .venv/bin/activate)"

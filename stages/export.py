@@ -15,7 +15,7 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, free_space_error, output_set
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe.store import store_cameras
 from stages import add_selection_arguments, stage_params
 
 
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> None:
     formats = args.formats.split(",") if args.formats else list(params.export.formats)
     for fmt in formats:
         exporters.exporter(fmt)  # InputError naming the formats for an unknown one
-    store = read_store(store_path, kind=("source", "generated", "failed"), task=params.task)
+    store = exporters.read(store_path, params.task)  # images stay on disk, read per episode
     name = store_path.name.removesuffix(".zarr")
     out = Path(args.out or layout.export_dir(name))
     metrics_path = Path(args.metrics or layout.metrics_file("export", name))
@@ -50,7 +50,9 @@ def run(args: argparse.Namespace) -> None:
     # HDF5 cannot be stopped cleanly on a full disk (it may crash the process): make sure
     # beforehand that every format's arrays fit uncompressed
     arrays = [*store.data.values(), *store.episodes.values()]
-    error = free_space_error(out, len(formats) * sum(a.nbytes for a in arrays))
+    pixels = sum(h * w for h, w in store_cameras(store.attrs).values())
+    images = int(store.lengths.sum()) * pixels * 3
+    error = free_space_error(out, len(formats) * (sum(a.nbytes for a in arrays) + images))
     if error is not None:
         raise error
     metrics: dict[str, float | int] = {"episodes": store.n_episodes}
@@ -66,8 +68,9 @@ def run(args: argparse.Namespace) -> None:
             if fmt == "maniskill":
                 ok = sum(bool(r.success[-1]) for r in extra["replays"])
                 metrics["maniskill_replay_success"] = ok / max(1, store.n_episodes)
-            path = exporters.write(store, fmt, tmp_out, info, **extra)
+            path, figures = exporters.write(store, fmt, tmp_out, info, **extra)
             metrics[f"{fmt}_seconds"] = round(time.perf_counter() - t0, 2)
+            metrics |= {f"{fmt}_{k}": v for k, v in figures.items()}
             print(f"export: {fmt} -> {out / path.name}")
         a = store.attrs
         identity = metrics_identity(

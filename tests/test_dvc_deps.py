@@ -84,7 +84,8 @@ def test_an_exporter_or_executor_is_a_dep_only_where_it_runs(package):
     files); an executor only the stages that run their work through one."""
     users = {
         "exporters": {"export", "source"},
-        "executors": {"generate", "evaluate", "export", "train"},  # train: seeds side by side
+        # train: seeds side by side; observe: blocks of episodes pictured
+        "executors": {"generate", "evaluate", "export", "train", "observe"},
     }
     for pipeline, name, stage in all_stages():
         command = stage["cmd"].split()[1]

@@ -1,8 +1,10 @@
 """Export (robomimic HDF5, LeRobot, ManiSkill trajectories), each read back by the format's
-own library or tool; robomimic import as source demos; manual subtask annotation."""
+own library or tool, camera images and subtask labels included; robomimic import as source
+demos; manual subtask annotation."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -16,12 +18,33 @@ import pytest
 from mimicgen_pipe import exporters
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.segments import gripper_events, read_boundaries
-from mimicgen_pipe.store import read_store, write_store
+from mimicgen_pipe.store import read_store, store_cameras, write_store
 from mimicgen_pipe.taskspec import SubtaskSpec
 from tests.conftest import REPO, cli
 
 LENGTHS = (12, 7, 5)
 OBS = {"eef_pos": 3, "cubeA_pos": 3, "gripper_qpos": 2}
+# (height, width): both cameras one size, as LeRobot's Diffusion policy wants them
+CAMERAS = {"agentview": (84, 96), "eye_in_hand": (84, 96)}
+SUBTASK_STARTS = [t // 2 for t in LENGTHS]  # where grasp_cubeA's signal rises: place_on_cubeB
+
+
+def _images(n: int, h: int, w: int, seed: int) -> np.ndarray:
+    """(n, h, w, 3) uint8: smooth gradients, a blue level that changes by 24 a step and a square
+    that moves by 5 pixels a step (what a video codec keeps well, each frame far from the
+    next), different for every seed."""
+    y, x = np.mgrid[0:h, 0:w]
+    out = np.empty((n, h, w, 3), np.uint8)
+    for t in range(n):
+        out[t, ..., 0] = (2 * x + 40 * seed) % 256
+        out[t, ..., 1] = (2 * y + 60 * seed) % 256
+        out[t, ..., 2] = (24 * t + 20 * seed) % 200
+        out[t, 8:24, 5 * t % (w - 16) :][:, :16] = (250, 250, 30)
+    return out
+
+
+# the export stage's params for the synthetic stores (which record these observations only)
+PARAMS = f"task: stack_cube\nexport: {{workers: 1}}\ntrain: {{obs_keys: [{', '.join(OBS)}]}}\n"
 
 
 def _pose_rows(rng, n: int) -> np.ndarray:
@@ -32,12 +55,17 @@ def _pose_rows(rng, n: int) -> np.ndarray:
 
 
 def synthetic_store(
-    path, backend: str = "maniskill", drop: tuple[str, ...] = (), task="stack_cube"
+    path,
+    backend: str = "maniskill",
+    drop: tuple[str, ...] = (),
+    task="stack_cube",
+    cameras: dict[str, tuple[int, int]] | None = None,
 ):
-    """A small generated store of stack_cube with random (but well-formed) values."""
+    """A small generated store of stack_cube with random (but well-formed) values, with
+    ``cameras``' images (an observed store) when given; read as the export stage reads it."""
     rng = np.random.default_rng(0)
     steps = []
-    for t in LENGTHS:
+    for i, t in enumerate(LENGTHS):
         ep = {
             "actions": rng.uniform(-1, 1, (t, 7)).astype(np.float32),
             "env_state": rng.normal(size=(t, 20)).astype(np.float32),
@@ -49,6 +77,8 @@ def synthetic_store(
             "subtask_signals/grasp_cubeA": np.arange(t) >= t // 2,
         }
         ep |= {f"obs/{k}": rng.normal(size=(t, d)).astype(np.float32) for k, d in OBS.items()}
+        for j, (c, (h, w)) in enumerate((cameras or {}).items()):
+            ep[f"obs/{c}_image"] = _images(t, h, w, seed=2 * i + j)
         steps.append({k: v for k, v in ep.items() if k not in drop})
     n = len(LENGTHS)
     episodes = {
@@ -58,8 +88,10 @@ def synthetic_store(
     }
     attrs = {"task": task, "variant": "D1", "backend": backend, "robot": "panda",
              "control_mode": "pd_ee_delta_pose", "control_freq": 20}  # fmt: skip
+    if cameras:
+        attrs["cameras"] = {c: {"height": h, "width": w} for c, (h, w) in cameras.items()}
     write_store(path, "generated", steps, episodes, attrs)
-    return read_store(path)
+    return exporters.read(path, task)
 
 
 def export_info(store):
@@ -70,34 +102,57 @@ def export_info(store):
 
 
 def test_robomimic_export_reads_back_with_robomimics_dataset_class(tmp_path):
-    """robomimic's SequenceDataset gives back our actions, states and observations for every
-    step of the train and valid splits; datagen_info keeps the poses as 4x4 matrices."""
+    """robomimic's SequenceDataset gives back our actions, states, subtask labels, low-dim
+    observations and camera images (next_obs too) for every step of the train and valid
+    splits; datagen_info keeps the poses as 4x4 matrices."""
     import robomimic.utils.obs_utils as obs_utils
     from robomimic.utils.dataset import SequenceDataset
 
-    store = synthetic_store(tmp_path / "g.zarr")
-    path = exporters.write(store, "robomimic", tmp_path, export_info(store))
-    obs_utils.initialize_obs_utils_with_obs_specs({"obs": {"low_dim": [f"{k}" for k in OBS]}})
+    store = synthetic_store(tmp_path / "g.zarr", cameras=CAMERAS)
+    path, figures = exporters.write(store, "robomimic", tmp_path, export_info(store))
+    images = {f"{c}_image": np.concatenate(list(exporters.episode_images(store, c)))
+              for c in CAMERAS}  # fmt: skip
+    labels = np.concatenate(
+        [np.arange(t) >= s for t, s in zip(LENGTHS, SUBTASK_STARTS, strict=True)]
+    ).astype(np.int64)
+    obs_utils.initialize_obs_utils_with_obs_specs(
+        {"obs": {"low_dim": list(OBS), "rgb": list(images)}}
+    )
     seen = 0
     for split, demos in (("train", [0, 1]), ("valid", [2])):
         ds = SequenceDataset(
-            hdf5_path=str(path), obs_keys=list(OBS), dataset_keys=["actions", "states"],
-            seq_length=1, hdf5_cache_mode="all", filter_by_attribute=split,
+            hdf5_path=str(path), obs_keys=[*OBS, *images],
+            dataset_keys=["actions", "states", "subtask_index"], seq_length=1,
+            hdf5_cache_mode="all", filter_by_attribute=split,
         )  # fmt: skip
         assert len(ds) == sum(LENGTHS[i] for i in demos)
         k = 0
         for i in demos:
             ep = store.episode(i)
+            start = store.episode_starts[i]
             for t in range(LENGTHS[i]):
                 sample = ds[k]
                 np.testing.assert_array_equal(sample["actions"][0], ep["actions"][t])
                 np.testing.assert_array_equal(sample["states"][0], ep["env_state"][t])
+                assert sample["subtask_index"][0] == labels[start + t]
                 for key in OBS:
                     np.testing.assert_array_equal(sample["obs"][key][0], ep[f"obs/{key}"][t])
+                for key, value in images.items():
+                    np.testing.assert_array_equal(sample["obs"][key][0], value[start + t])
+                    nxt = value[start + min(t + 1, LENGTHS[i] - 1)]
+                    np.testing.assert_array_equal(sample["next_obs"][key][0], nxt)
                 k += 1
         seen += k
     assert seen == sum(LENGTHS)
     with h5py.File(path, "r") as f:
+        assert json.loads(f["data"].attrs["subtasks"]) == ["grasp_cubeA", "place_on_cubeB"]
+        image = f["data/demo_0/obs/agentview_image"]
+        assert image.dtype == np.uint8 and image.shape == (12, 84, 96, 3)
+        assert image.chunks == (4, 84, 96, 3) and image.compression == "gzip"
+        assert f["data/demo_0/next_obs/agentview_image"].is_virtual  # no second copy
+        stored = sum(f[f"data/demo_{i}/obs/{k}"].id.get_storage_size()
+                     for i in range(3) for k in images)  # fmt: skip
+        assert figures == {"image_bytes": stored}
         assert f["data"].attrs["total"] == sum(LENGTHS)
         env_args = json.loads(f["data"].attrs["env_args"])
         assert env_args["env_kwargs"] == {"backend": "maniskill", "task": "stack_cube",
@@ -117,36 +172,156 @@ def test_robomimic_export_reads_back_with_robomimics_dataset_class(tmp_path):
         assert f["data/demo_0"].attrs["num_samples"] == 12
 
 
-LEROBOT = REPO / "tests/lerobot"
+LEARNERS = REPO / "tests/learners"  # scripts run in the learners' check venv
+
+
+def _lerobot_check(tmp_path, store, *flags: str) -> subprocess.CompletedProcess:
+    """Export ``store`` as LeRobot and run tests/learners/check_dataset.py on it in the
+    learners' check venv, with the arrays it must find."""
+    python = REPO / ".venv-learners/bin/python"
+    assert python.exists(), "the learners' check venv is missing: run scripts/setup.sh"
+    info = export_info(store)
+    path, _ = exporters.write(store, "lerobot", tmp_path, info)
+    lengths = store.lengths
+    obs = {k: store.data[f"obs/{k}"] for k in OBS}
+    videos = {
+        f"images/observation.images.{c}": np.concatenate(list(exporters.episode_images(store, c)))
+        for c in store_cameras(store.attrs)
+    }
+    np.savez(tmp_path / "expected.npz", action=store.data["actions"],
+             state=np.concatenate([obs["eef_pos"], obs["gripper_qpos"]], axis=1),
+             env_state=obs["cubeA_pos"], lengths=lengths,
+             episode_index=np.repeat(np.arange(len(LENGTHS)), lengths),
+             subtask_index=exporters.subtask_labels(store, info.subtasks),
+             subtasks=["grasp cubeA", "place on cubeB"], fps=20, task=info.task_description,
+             action_names=exporters.lerobot.ACTION_NAMES,
+             state_names=exporters.lerobot.state_names(store, ["eef_pos", "gripper_qpos"]),
+             env_state_names=exporters.lerobot.state_names(store, ["cubeA_pos"]),
+             video_keys=[k.removeprefix("images/") for k in videos], **videos)  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env |= {"HF_HOME": str(tmp_path / "hf")}
+    return subprocess.run(
+        [str(python), str(LEARNERS / "check_dataset.py"), str(path), str(tmp_path / "expected.npz"),
+         *flags],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
 
 
 def test_lerobot_export_loads_with_lerobots_dataset_class(tmp_path):
     """lerobot 0.4.4's LeRobotDataset (in its own venv, offline) reads every frame back:
-    action and observation.state equal ours, episode lengths, names, fps and task string."""
-    python = REPO / ".venv-lerobot/bin/python"
-    assert python.exists(), "the LeRobot check venv is missing: run scripts/setup.sh"
-    store = synthetic_store(tmp_path / "g.zarr")
-    info = export_info(store)
-    path = exporters.write(store, "lerobot", tmp_path, info)
-    state = np.concatenate([store.data[f"obs/{k}"] for k in OBS], axis=1)
-    lengths = store.lengths
-    np.savez(tmp_path / "expected.npz", action=store.data["actions"], state=state,
-             lengths=lengths, episode_index=np.repeat(np.arange(len(LENGTHS)), lengths),
-             fps=20, task=info.task_description, action_names=exporters.lerobot.ACTION_NAMES,
-             state_names=exporters.lerobot.state_names(store, list(OBS)))  # fmt: skip
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    env |= {"PYTHONPATH": str(LEROBOT / "stubs"), "HF_HOME": str(tmp_path / "hf")}
-    res = subprocess.run(
-        [str(python), str(LEROBOT / "check_dataset.py"), str(path), str(tmp_path / "expected.npz")],
-        capture_output=True, text=True, env=env,
-    )  # fmt: skip
+    action, observation.state (robot) and observation.environment_state (objects) equal
+    ours, subtask_index and its subtask string, each camera's frame decoded from the video
+    near ours and nearer than any other frame of the episode; episode lengths, names, fps,
+    image stats and the task string."""
+    store = synthetic_store(tmp_path / "g.zarr", cameras=CAMERAS)
+    res = _lerobot_check(tmp_path, store)
     assert res.returncode == 0 and res.stdout.strip().endswith("ok"), res.stderr[-3000:]
-    assert info.task_description == "stack_cube: grasp cubeA, then place on cubeB"
+    assert export_info(store).task_description == "stack_cube: grasp cubeA, then place on cubeB"
+
+
+def test_lerobot_export_passes_act_and_diffusion_feature_checks(tmp_path):
+    """LeRobot's ACT and Diffusion configs, given our dataset's features as lerobot-train
+    splits them, pass their own feature checks (images and environment state as inputs)."""
+    store = synthetic_store(tmp_path / "g.zarr", cameras=CAMERAS)
+    res = _lerobot_check(tmp_path, store, "--policies")
+    assert res.returncode == 0 and res.stdout.strip().endswith("ok"), res.stderr[-3000:]
+
+
+def test_lerobot_layout_is_lerobots_and_the_same_bytes_every_time(tmp_path):
+    """One AV1 video per camera with LeRobot's video info, each episode's span in it, image
+    stats per channel in [0, 1], the subtask table; a second export of the same store is the
+    same bytes, file for file. A store without images gives no videos."""
+    import pyarrow.parquet as pq
+
+    store = synthetic_store(tmp_path / "g.zarr", cameras=CAMERAS)
+    info = export_info(store)
+    path, figures = exporters.write(store, "lerobot", tmp_path / "a", info)
+    again, _ = exporters.write(store, "lerobot", tmp_path / "b", info)
+    files = sorted(p.relative_to(path) for p in path.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
+    for f in files:
+        assert (path / f).read_bytes() == (again / f).read_bytes(), f
+    videos = sorted(str(f) for f in files if f.suffix == ".mp4")
+    assert videos == [f"videos/observation.images.{c}/chunk-000/file-000.mp4" for c in CAMERAS]
+    assert figures == {"image_bytes": sum((path / v).stat().st_size for v in videos)}
+    meta = json.loads((path / "meta/info.json").read_text())
+    feature = meta["features"]["observation.images.agentview"]
+    assert feature["dtype"] == "video" and feature["shape"] == [*CAMERAS["agentview"], 3]
+    assert feature["info"]["video.codec"] == "av1" and feature["info"]["video.fps"] == 20
+    assert meta["video_path"] == exporters.lerobot.VIDEO_PATH
+    assert meta["features"]["subtask_index"] == {"dtype": "int64", "shape": [1], "names": None}
+    names = meta["features"]["observation.environment_state"]["names"]
+    assert names == ["cubeA_pos.x", "cubeA_pos.y", "cubeA_pos.z"]
+    episodes = pq.read_table(path / exporters.lerobot.EPISODES_PATH).to_pydict()
+    key = "videos/observation.images.eye_in_hand"
+    ends = np.cumsum(LENGTHS) / 20
+    np.testing.assert_allclose(episodes[f"{key}/from_timestamp"], [0, *ends[:-1]])
+    np.testing.assert_allclose(episodes[f"{key}/to_timestamp"], ends)
+    stats = json.loads((path / "meta/stats.json").read_text())["observation.images.agentview"]
+    mean = np.array(stats["mean"])
+    assert mean.shape == (3, 1, 1) and stats["count"] == [sum(LENGTHS)]
+    assert 0 <= np.min(stats["min"]) and np.max(stats["max"]) <= 1
+    images = np.concatenate(list(exporters.episode_images(store, "agentview")))
+    np.testing.assert_allclose(mean[:, 0, 0], images.reshape(-1, 3).mean(0) / 255)
+    median = episodes["stats/observation.images.agentview/q50"][0]  # episode 0's, LeRobot's way
+    pixels = images[: LENGTHS[0]].reshape(-1, 3) / 255
+    np.testing.assert_allclose(np.ravel(median), np.quantile(pixels, 0.5, axis=0))
+    subtasks = pq.read_table(path / "meta/subtasks.parquet").to_pydict()
+    assert subtasks == {"subtask_index": [0, 1], "subtask": ["grasp cubeA", "place on cubeB"]}
+    frames = pq.read_table(path / "data/chunk-000/file-000.parquet")
+    np.testing.assert_array_equal(
+        frames["subtask_index"].to_numpy(), exporters.subtask_labels(store, info.subtasks)
+    )
+    plain = synthetic_store(tmp_path / "plain.zarr")
+    path, figures = exporters.write(plain, "lerobot", tmp_path / "c", export_info(plain))
+    assert figures == {"image_bytes": 0} and not (path / "videos").exists()
+    assert json.loads((path / "meta/info.json").read_text())["video_path"] is None
+
+
+def test_lerobot_videos_go_on_in_a_new_file_past_the_file_size(tmp_path, monkeypatch):
+    """Past video_files_size_in_mb the next episode starts the next file, at time 0, as
+    LeRobot numbers files; its frames are the episode's."""
+    import av
+
+    monkeypatch.setattr(exporters.lerobot, "VIDEO_FILE_MB", 0)  # every episode its own file
+    store = synthetic_store(tmp_path / "g.zarr", cameras=CAMERAS)
+    path, _ = exporters.write(store, "lerobot", tmp_path, export_info(store))
+    episodes = pq_dict(path / exporters.lerobot.EPISODES_PATH)
+    key = "videos/observation.images.agentview"
+    assert episodes[f"{key}/file_index"] == [0, 1, 2]
+    assert episodes[f"{key}/chunk_index"] == [0, 0, 0]
+    assert episodes[f"{key}/from_timestamp"] == [0.0, 0.0, 0.0]
+    np.testing.assert_allclose(episodes[f"{key}/to_timestamp"], np.array(LENGTHS) / 20)
+    with av.open(str(path / "videos/observation.images.agentview/chunk-000/file-002.mp4")) as f:
+        assert sum(1 for _ in f.decode(video=0)) == LENGTHS[2]
+
+
+def pq_dict(path) -> dict[str, list]:
+    import pyarrow.parquet as pq
+
+    return pq.read_table(path).to_pydict()
+
+
+def test_subtask_labels_come_from_subtask_ends_or_term_signals(tmp_path):
+    """Each step's subtask: from meta/episodes/subtask_term_index where the store has it,
+    else from the term signal's first rise; None from a store with neither."""
+    spec = export_info(synthetic_store(tmp_path / "g.zarr")).subtasks
+    store = synthetic_store(tmp_path / "g.zarr")
+    expected = np.concatenate([np.arange(t) >= s for t, s in zip(LENGTHS, SUBTASK_STARTS,
+                                                                 strict=True)])  # fmt: skip
+    np.testing.assert_array_equal(exporters.subtask_labels(store, spec), expected)
+    ends = np.array([[3], [5], [1]])
+    parsed = dataclasses.replace(store, episodes={**store.episodes, "subtask_term_index": ends})
+    by_ends = np.concatenate([np.arange(t) >= e for t, e in zip(LENGTHS, ends[:, 0],
+                                                                strict=True)])  # fmt: skip
+    np.testing.assert_array_equal(exporters.subtask_labels(parsed, spec), by_ends)
+    bare = synthetic_store(tmp_path / "bare.zarr", drop=("subtask_signals/grasp_cubeA",))
+    assert exporters.subtask_labels(bare, spec) is None
 
 
 def test_robomimic_file_reads_back_as_source_demos(tmp_path):
     store = synthetic_store(tmp_path / "g.zarr")
-    path = exporters.write(store, "robomimic", tmp_path, export_info(store))
+    path, _ = exporters.write(store, "robomimic", tmp_path, export_info(store))
     demos = exporters.robomimic.read(path, "maniskill", "stack_cube")
     assert [d.seed for d in demos] == [100, 101, 102]
     for i, d in enumerate(demos):
@@ -175,13 +350,20 @@ def test_robomimic_file_reads_back_as_source_demos(tmp_path):
         ),
         (["--formats", "robomimic", "--store", "nostate.zarr"], "no data/env_state"),
         (["--formats", "robomimic"], "give either --variant"),
+        (
+            ["--formats", "maniskill,lerobot", "--store", "nocamera.zarr"],
+            "cannot export as lerobot: no data/obs/agentview_image (attrs.cameras lists "
+            "'agentview')",
+        ),
     ],
 )
 def test_export_bad_input_is_one_error_before_anything_is_written(tmp_path, args, expected):
-    (tmp_path / "params.yaml").write_text("task: stack_cube\nexport: {workers: 1}\n")
+    (tmp_path / "params.yaml").write_text(PARAMS)
     synthetic_store(tmp_path / "input" / "g.zarr")
     synthetic_store(tmp_path / "pb.zarr", backend="pybullet", task="stack")
     synthetic_store(tmp_path / "nostate.zarr", drop=("env_state",))
+    nocamera = ("obs/agentview_image",)
+    synthetic_store(tmp_path / "nocamera.zarr", drop=nocamera, cameras=CAMERAS)
     if "--store" not in args and "give either" not in expected:
         args = [*args, "--store", "input/g.zarr"]
     res = cli("export", *args, "--out", "out", cwd=tmp_path, check=False)
@@ -189,6 +371,23 @@ def test_export_bad_input_is_one_error_before_anything_is_written(tmp_path, args
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and expected in lines[0], res.stderr
     assert not (tmp_path / "out").exists() and not (tmp_path / "metrics").exists()
+
+
+def test_export_metrics_hold_each_formats_image_bytes_and_seconds(tmp_path):
+    """The export stage on a store with images: the bytes the images take in each format
+    (robomimic's image datasets, LeRobot's videos) and the seconds each format took."""
+    (tmp_path / "params.yaml").write_text(PARAMS)
+    synthetic_store(tmp_path / "observed.zarr", cameras=CAMERAS)
+    cli("export", "--store", "observed.zarr", "--formats", "robomimic,lerobot", "--out", "out",
+        "--metrics", "m.json", cwd=tmp_path)  # fmt: skip
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    with h5py.File(tmp_path / "out/demos.hdf5", "r") as f:
+        demos = [f[f"data/demo_{i}/obs"] for i in range(len(LENGTHS))]
+        stored = sum(g[f"{c}_image"].id.get_storage_size() for g in demos for c in CAMERAS)
+    videos = sum(p.stat().st_size for p in (tmp_path / "out/lerobot/videos").rglob("*.mp4"))
+    assert metrics["robomimic_image_bytes"] == stored > 0
+    assert metrics["lerobot_image_bytes"] == videos > 0
+    assert metrics["robomimic_seconds"] > 0 and metrics["lerobot_seconds"] > 0
 
 
 def test_unknown_format_in_params_is_rejected_at_load(tmp_path):

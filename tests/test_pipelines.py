@@ -64,12 +64,11 @@ def test_the_counts_of_two_common_ablations(graph):
         f"{s}@{v}"
         for s in ("generate", "coverage", "train", "evaluate", "export", "render")
         for v in ("D0", "D1")
-    } | {"report"}
-    transfer = {s for s in selection if s.startswith("generate_transfer")}
+    } | {"report", "observe", "export_observed"}
+    transfer = {s for s in selection if s.startswith(("generate_transfer", "observe_transfer"))}
     assert selection == main | transfer
-    assert (
-        len(transfer) == 20
-    )  # 3 PyBullet tasks x 2 variants x 3 arms + StackCube x 2 on the xArm6
+    # 3 PyBullet tasks x 2 variants x 3 arms + StackCube x 2 on the xArm6, + Stack observed
+    assert len(transfer) == 21
     assert rerun(graph, "train.profile") == {
         "train_source",
         "train@D0",
@@ -85,7 +84,8 @@ def test_the_counts_of_two_common_ablations(graph):
 @pytest.mark.parametrize(
     "key",
     ["generate.workers", "generate.executor", "train.workers", "evaluate.workers",
-     "evaluate.executor", "export.workers", "maniskill.lean_step", "ray.address"],
+     "evaluate.executor", "export.workers", "observe.workers", "maniskill.lean_step",
+     "ray.address"],
 )  # fmt: skip
 def test_a_key_that_changes_no_number_re_runs_nothing(graph, key):
     assert rerun(graph, key) == set()

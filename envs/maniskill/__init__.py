@@ -18,6 +18,14 @@ def check_robot(robot: str) -> None:
         raise InputError(f"robot {robot!r}: unknown for maniskill (known: {', '.join(ROBOTS)})")
 
 
+def cameras(robot: str) -> tuple[str, ...]:
+    """The Panda's (envs/maniskill/render.py renders the Panda only)."""
+    from envs import CAMERAS
+
+    check_robot(robot)
+    return CAMERAS if robot == "panda" else ()
+
+
 def task_names() -> tuple[str, ...]:
     return choices("envs.maniskill.tasks")
 

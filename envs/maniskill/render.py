@@ -1,23 +1,55 @@
-"""Rendering stored ManiSkill states on the CPU (SAPIEN's renderer on lavapipe)."""
+"""Rendering stored ManiSkill states on the CPU (SAPIEN's renderer on lavapipe): the render
+stage's video view and the observation cameras (envs.CAMERAS, placed by envs/_cameras.py)."""
 
 from __future__ import annotations
 
+import time
+from collections.abc import Sequence
+
 import numpy as np
 
+from envs import CAMERAS
+from envs._cameras import (
+    AGENTVIEW_EYE,
+    AGENTVIEW_FOV,
+    AGENTVIEW_TARGET,
+    WRIST_FORWARD,
+    WRIST_FOV,
+    WRIST_POS,
+    WRIST_UP,
+)
+from mimicgen_pipe import poses
 from mimicgen_pipe.errors import InputError
 
-# a camera that holds the whole arm and the workspace, closer than ManiSkill's default view
+# the render stage's view: the whole arm and the workspace, closer than ManiSkill's default
 EYE, TARGET, FOV = (0.3, 0.55, 0.65), (-0.3, 0.0, 0.1), 1.0
+VIDEO = "video"
+# SAPIEN's cheapest shader; "default" gives the same colours to within one level at 3x the
+# picture size (float32), and costs more per frame (benchmarks/observe.py)
+SHADER = "minimal"
 
 
 class Renderer:
-    """Frames of flat states (ManiSkillEnv.get_state() layout) of ``task`` with ``robot`` (the
-    Panda only): a second env of the same task, built with a renderer, that is only ever set,
-    never stepped."""
+    """Images of flat states (ManiSkillEnv.get_state() layout) of ``task`` with ``robot`` (the
+    Panda only) from ``cameras``: ``video`` (the render stage's view) and those of CAMERAS,
+    each (height, width, 3) uint8 RGB. A second env of the same task, built with a renderer,
+    that is only ever set, never stepped; all cameras see one scene update per state.
+    ``shader``: SAPIEN's shader pack of the observation cameras."""
 
-    def __init__(self, task: str, robot: str, width: int, height: int) -> None:
+    def __init__(
+        self,
+        task: str,
+        robot: str,
+        width: int,
+        height: int,
+        cameras: Sequence[str] = (VIDEO,),
+        shader: str = SHADER,
+    ) -> None:
         if robot != "panda":  # the arm ManiSkill's own task registers
             raise InputError(f"render: robot {robot!r}: the maniskill renderer shows panda only")
+        unknown = [c for c in cameras if c not in (VIDEO, *CAMERAS)]
+        if unknown:
+            raise ValueError(f"cameras {unknown}: expected among {(VIDEO, *CAMERAS)}")
         import gymnasium as gym
         import torch
         from mani_skill.utils import sapien_utils
@@ -26,6 +58,8 @@ class Renderer:
         from envs.maniskill.env import ManiSkillEnv
 
         self._torch = torch
+        self.cameras = tuple(cameras)
+        self.seconds = dict.fromkeys(self.cameras, 0.0)  # spent per camera, in images()
         task = load_task("maniskill", task)
         self._env = gym.make(
             ManiSkillEnv.env_id_for(task),
@@ -43,11 +77,60 @@ class Renderer:
             },
         )  # fmt: skip
         self._env.reset(seed=0)  # gym renders only after a reset
+        u = self._env.unwrapped
+        self._scene = u.scene
+        made = {VIDEO: next(iter(u.scene.human_render_cameras.values()))}
+        for name in self.cameras:
+            if name != VIDEO:
+                made[name] = self._camera(u, name, width, height, shader)
+        # SAPIEN's own cameras: reading their pictures directly skips ManiSkill's batched
+        # torch wrapping of each image
+        self._render_cameras = {n: made[n].camera._render_cameras[0] for n in self.cameras}
+        self._float = {n: made[n].config.shader_pack != "minimal" for n in self.cameras}
+
+    @staticmethod
+    def _camera(u, name: str, width: int, height: int, shader: str):
+        """ManiSkill camera ``name`` of CAMERAS in the env ``u``'s scene."""
+        from mani_skill.sensors.camera import Camera, CameraConfig
+        from mani_skill.utils import sapien_utils
+        from mani_skill.utils.structs.pose import Pose
+
+        if name == "agentview":
+            pose = sapien_utils.look_at(list(AGENTVIEW_EYE), list(AGENTVIEW_TARGET))
+            config = CameraConfig(name, pose, width, height, AGENTVIEW_FOV, 0.01, 100)
+        else:
+            # SAPIEN's camera frame: x forward, y left, z up
+            left = np.cross(WRIST_UP, WRIST_FORWARD)
+            rot = np.stack([WRIST_FORWARD, left, WRIST_UP], axis=1)
+            q = poses.matrix_to_quat_wxyz(rot)
+            pose = Pose.create_from_pq(p=WRIST_POS.tolist(), q=q.tolist())
+            hand = u.agent.robot.links_map["panda_hand"]
+            config = CameraConfig(name, pose, width, height, WRIST_FOV, 0.01, 100, mount=hand)
+        config.shader_pack, config.shader_config = shader, None
+        config.__post_init__()  # the shader pack's config
+        return Camera(config, u.scene)
+
+    def images(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        """Camera name -> (H, W, 3) uint8 RGB of the scene in ``state``; adds each camera's
+        seconds (its picture, and its share of setting the scene) to ``seconds``."""
+        t0 = time.perf_counter()
+        self._env.unwrapped.set_state(self._torch.as_tensor(np.asarray(state, np.float32))[None])
+        self._scene.update_render(update_sensors=False, update_human_render_cameras=True)
+        share = (time.perf_counter() - t0) / len(self.cameras)
+        out = {}
+        for name, camera in self._render_cameras.items():
+            t0 = time.perf_counter()
+            camera.take_picture()
+            rgba = camera.get_picture("Color")
+            if self._float[name]:  # as ManiSkill converts the default shader's floats
+                rgba = (rgba * 255).astype(np.uint8)
+            out[name] = np.ascontiguousarray(rgba[..., :3])
+            self.seconds[name] += time.perf_counter() - t0 + share
+        return out
 
     def frame(self, state: np.ndarray) -> np.ndarray:
-        """(H, W, 3) uint8 RGB of the scene in ``state``."""
-        self._env.unwrapped.set_state(self._torch.as_tensor(np.asarray(state, np.float32))[None])
-        return np.asarray(self._env.render()[0].cpu().numpy(), np.uint8)
+        """(H, W, 3) uint8 RGB of the scene in ``state`` from the first camera."""
+        return self.images(state)[self.cameras[0]]
 
     def close(self) -> None:
         self._env.close()

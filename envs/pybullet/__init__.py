@@ -16,6 +16,14 @@ def check_robot(robot: str) -> None:
     robot_urdf_text(robot_spec(robot))
 
 
+def cameras(robot: str) -> tuple[str, ...]:
+    """Every arm carries the Franka hand, and so the wrist camera."""
+    from envs import CAMERAS
+
+    check_robot(robot)
+    return CAMERAS
+
+
 def task_names() -> tuple[str, ...]:
     return choices("envs.pybullet.tasks")
 
@@ -62,4 +70,12 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     return kept, failed, tried
 
 
-__all__ = ["ROBOTS", "check_robot", "load_task", "make_env", "source_episodes", "task_names"]
+__all__ = [
+    "ROBOTS",
+    "cameras",
+    "check_robot",
+    "load_task",
+    "make_env",
+    "source_episodes",
+    "task_names",
+]

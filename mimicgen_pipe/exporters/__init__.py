@@ -3,7 +3,7 @@
 One module per format, named as ``export.formats`` names it (mimicgen_pipe.registry):
 
 - :mod:`.robomimic`: robomimic / MimicGen HDF5 (``data/demo_<i>``, ``mask/``, ``datagen_info``)
-- :mod:`.lerobot`: a LeRobot dataset (parquet files and ``meta/``), low-dim state and action
+- :mod:`.lerobot`: a LeRobot dataset (parquet files, ``meta/`` and one video per camera)
 - :mod:`.maniskill`: a ManiSkill trajectory (``.h5`` + ``.json``) that ManiSkill's own
   ``replay_trajectory`` replays; ManiSkill back end only
 
@@ -15,25 +15,34 @@ Each defines
   made;
 - ``check(store, info) -> str | None``: why ``store`` cannot be exported, before anything is
   written (:func:`missing_keys` helps), or None;
-- ``write(store, path, info, **extra) -> None``: the format at ``path``.
+- ``write(store, path, info, **extra) -> dict``: the format at ``path``; returns figures for
+  the metrics file (``image_bytes``: bytes its camera images take on disk).
 
 Every format reads the same :class:`ExportInfo`, made by the export stage from the store's
-attrs and params.yaml.
+attrs and params.yaml, and the same store: :func:`read` gives every array but the camera
+images, which the formats read one episode at a time (:func:`episode_images`), so that an
+export's memory does not grow with the images (1000 stack_cube demos of two 84x84
+cameras hold about 4.7 GB of them).
 """
 
 from __future__ import annotations
 
 import types
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.outputs import OutputKind, directory_kind
 from mimicgen_pipe.registry import choices, load
-from mimicgen_pipe.store import EpisodeStore
-from mimicgen_pipe.taskspec import TaskSpec
+from mimicgen_pipe.segments import subtask_at_steps
+from mimicgen_pipe.store import EpisodeStore, image_key, open_store, read_store, store_cameras
+from mimicgen_pipe.taskspec import SubtaskSpec, TaskSpec
+
+KINDS = ("source", "generated", "failed")  # the stores export takes
 
 
 @dataclass(frozen=True)
@@ -43,8 +52,10 @@ class ExportInfo:
     env_args: {"env_name", "type", "env_kwargs"}: ``envs.make_env(**env_kwargs)`` rebuilds the
     env the episodes ran in (robomimic's ``env_args``). task_description: one sentence (the
     LeRobot task string). obs_keys: the policy observation, keys of ``obs/`` concatenated in
-    this order as LeRobot's ``observation.state``. fps: control frequency [Hz]. valid_fraction:
-    share of episodes in robomimic's ``mask/valid`` (the last ones), the rest in ``mask/train``.
+    this order as LeRobot's ``observation.state`` and ``observation.environment_state``. fps:
+    control frequency [Hz]. valid_fraction: share of episodes in robomimic's ``mask/valid``
+    (the last ones), the rest in ``mask/train``. subtasks: the task's subtasks in order (the
+    per-step subtask labels index them).
     """
 
     env_args: dict[str, Any]
@@ -52,6 +63,7 @@ class ExportInfo:
     obs_keys: tuple[str, ...]
     fps: int
     valid_fraction: float = 0.1
+    subtasks: tuple[SubtaskSpec, ...] = ()
 
 
 ENV_TYPE = 2  # robomimic's EnvType.GYM_TYPE: env_kwargs rebuild a gym-style env, not robosuite
@@ -74,6 +86,7 @@ def export_info(
         obs_keys=tuple(obs_keys),
         fps=int(attrs["control_freq"]),
         valid_fraction=valid_fraction,
+        subtasks=tuple(spec.subtasks),
     )
 
 
@@ -99,13 +112,78 @@ def check(store: EpisodeStore, fmt: str, info: ExportInfo) -> None:
         raise InputError(f"{store.path}: cannot export as {fmt}: {why}")
 
 
-def write(store: EpisodeStore, fmt: str, out_dir: Path, info: ExportInfo, **extra: Any) -> Path:
+def write(
+    store: EpisodeStore, fmt: str, out_dir: Path, info: ExportInfo, **extra: Any
+) -> tuple[Path, dict[str, Any]]:
     """Write ``store`` as ``fmt`` into ``out_dir`` (at the format's FILE_NAME); returns the
-    path."""
+    path and the format's figures for the metrics file."""
     module = exporter(fmt)
     path = Path(out_dir) / module.FILE_NAME
-    module.write(store, path, info, **extra)
-    return path
+    return path, module.write(store, path, info, **extra)
+
+
+def read(path: str | Path, task: str) -> EpisodeStore:
+    """The store at ``path`` in memory, but for its camera images (:func:`episode_images`
+    reads them), checked as read_store checks a store: InputError naming the array."""
+    view = open_store(path, task=task, kind=KINDS)
+    if not store_cameras(view.attrs):
+        return read_store(path, task=task, kind=KINDS)
+    images = {image_key(c) for c in store_cameras(view.attrs)}
+    every = range(view.n_episodes)
+    data = {k: view.read_rows(k, every) for k in view.data_keys if k not in images}
+    episodes = {k: view.episode_field(k) for k in view.episode_keys}
+    return EpisodeStore(view.path, data, view.episode_ends, episodes, view.attrs)
+
+
+def missing_images(store: EpisodeStore) -> str | None:
+    """Why the images of the cameras the store's attrs list cannot be read (an image array
+    missing, or not (N_steps, H, W, 3) uint8 with the listed size), or None."""
+    cams = store_cameras(store.attrs)
+    if not cams:
+        return None
+    view = open_store(store.path)
+    for camera, (h, w) in cams.items():
+        key = image_key(camera)
+        if f"data/{key}" not in view.arrays:
+            return f"no data/{key} (attrs.cameras lists {camera!r})"
+        array = view.arrays[f"data/{key}"]
+        expected = (int(store.episode_ends[-1]) if store.n_episodes else 0, h, w, 3)
+        if tuple(array.shape) != expected or array.dtype != np.uint8:
+            return f"data/{key} is {array.dtype} {tuple(array.shape)}, expected uint8 {expected}"
+    return None
+
+
+def episode_images(store: EpisodeStore, camera: str) -> Iterator[np.ndarray]:
+    """The images of ``camera``, one (T_i, H, W, 3) uint8 array per episode, in order; one
+    episode in memory at a time."""
+    view = open_store(store.path)
+    for i in range(store.n_episodes):
+        yield view.read_rows(image_key(camera), [i])
+
+
+def subtask_labels(store: EpisodeStore, subtasks: Sequence[SubtaskSpec]) -> np.ndarray | None:
+    """(N_steps,) int64: the subtask each step belongs to, an index into ``subtasks``. From the
+    store's subtask ends (``meta/episodes/subtask_term_index``: subtask i + 1 starts at end
+    i) where it has them, else from its term signals as the generator walks them (subtask
+    i + 1 starts at the first rise of subtask i's term signal after subtask i started; an
+    episode that fails stays in the subtask whose signal never rose). None for a store
+    with neither (a source store brought in from a file without its signals)."""
+    if not subtasks:
+        return None
+    lengths = store.lengths
+    if "subtask_term_index" in store.episodes:
+        ends = store.episodes["subtask_term_index"]
+        parts = [
+            np.searchsorted(e, np.arange(n), side="right")
+            for e, n in zip(ends, lengths, strict=True)
+        ]
+    elif all(f"subtask_signals/{s.term_signal}" in store.data for s in subtasks[:-1]):
+        parts = [
+            subtask_at_steps(store.episode(i), subtasks, int(n)) for i, n in enumerate(lengths)
+        ]
+    else:
+        return None
+    return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
 
 
 def task_description(spec: TaskSpec) -> str:

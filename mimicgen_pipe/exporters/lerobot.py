@@ -1,32 +1,57 @@
-"""A LeRobot dataset (format v3.0, as lerobot 0.4 reads it), written with pyarrow alone.
+"""A LeRobot dataset (format v3.0, as lerobot 0.4 reads it), written with pyarrow and PyAV.
 
-Per frame (``data/chunk-000/file-000.parquet``): ``observation.state`` float32 (the store's
-``obs/<key>`` for ExportInfo.obs_keys, concatenated in that order, world frame), ``action``
-float32 (dx, dy, dz [0.1 m per unit], drx, dry, drz [axis-angle, scaled as the back end's
-controller], gripper [+1 open, -1 closed]), and LeRobot's ``timestamp`` [s],
-``frame_index``, ``episode_index``, ``index`` (global) and ``task_index``. ``meta/``:
-``info.json`` (features with per-dimension names, fps = control frequency),
-``tasks.parquet`` (the task sentence), ``episodes/chunk-000/file-000.parquet`` (length and
-row range per episode, with per-episode stats) and ``stats.json`` (dataset stats).
+Per frame (``data/chunk-000/file-000.parquet``), world frame, float32:
+
+- ``observation.state``: the robot's keys of ExportInfo.obs_keys (``eef_*`` but
+  ``eef_to_<obj>_pos``, and ``gripper_*``), concatenated in that order;
+- ``observation.environment_state``: the other keys (the objects), concatenated in order;
+- ``action``: dx, dy, dz [0.1 m per unit], drx, dry, drz [axis-angle, scaled as the back
+  end's controller], gripper [+1 open, -1 closed];
+- ``subtask_index`` int64: the subtask the frame belongs to (exporters.subtask_labels), a row
+  of ``meta/subtasks.parquet``;
+- LeRobot's ``timestamp`` [s], ``frame_index``, ``episode_index``, ``index`` (global) and
+  ``task_index``.
+
+Per camera of the store, a video feature ``observation.images.<camera>``:
+``videos/observation.images.<camera>/chunk-000/file-000.mp4`` (AV1 by libsvtav1, yuv420p, at
+the control frequency, LeRobot's encoder settings; a new file past 200 MB), every episode's
+frames one after the other; an episode's ``videos/<key>/from_timestamp`` and
+``to_timestamp`` [s] in ``meta/episodes`` say where in its file it lies.
+
+``meta/``: ``info.json`` (features with per-dimension names and the videos' ``video.*``
+info, fps = control frequency), ``tasks.parquet`` (the task sentence),
+``subtasks.parquet`` (the subtasks, e.g. "grasp cubeA", indexed by ``subtask_index``),
+``episodes/chunk-000/file-000.parquet`` (length, row range, video file and time span per
+episode, with per-episode stats) and ``stats.json`` (dataset stats; an image's are per
+channel, shape (3, 1, 1), in [0, 1], over the frames LeRobot samples from each episode).
+
+A store without term signals or subtask ends has no ``subtask_index`` and no
+``subtasks.parquet``; a store without images no videos.
 """
 
 from __future__ import annotations
 
 import json
+import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mimicgen_pipe.store import EpisodeStore
+from mimicgen_pipe.store import EpisodeStore, store_cameras
 
 FILE_NAME = "lerobot"  # the dataset's folder in the export directory
 WRITES = r"lerobot(/.+)?"
 REQUIRED = ("actions",)
 CODEBASE_VERSION = "v3.0"
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
 EPISODES_PATH = "meta/episodes/chunk-000/file-000.parquet"
+CHUNKS_SIZE = 1000  # files per chunk folder, LeRobot's
+VIDEO_FILE_MB = 200  # LeRobot's video_files_size_in_mb: the next episode starts a new file
 ACTION_NAMES = ["dx", "dy", "dz", "drx", "dry", "drz", "gripper"]
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)  # LeRobot's stats keys q01 ... q99
 INDEX_FEATURES = {  # LeRobot's default per-frame features
@@ -36,18 +61,59 @@ INDEX_FEATURES = {  # LeRobot's default per-frame features
     "index": {"dtype": "int64", "shape": [1], "names": None},
     "task_index": {"dtype": "int64", "shape": [1], "names": None},
 }
+# LeRobot's default encoder (encode_video_frames): AV1 by SVT-AV1 in yuv420p, a key frame
+# every 2 frames (a training sampler seeks anywhere), crf 30, preset 12. Fixed, so that the
+# same store gives the same bytes (SVT-AV1's output does not depend on its thread count).
+VIDEO_CODEC = "libsvtav1"
+VIDEO_PIX_FMT = "yuv420p"
+VIDEO_OPTIONS = {"g": "2", "crf": "30", "preset": "12"}
+MIN_VIDEO_WIDTH = 32  # libsvtav1 3.0 kills the process (SIGFPE) on frames under 25 px wide
 _AXES = "xyzw"
 
 
 def check(store: EpisodeStore, info) -> str | None:
-    from mimicgen_pipe.exporters import missing_keys
+    from mimicgen_pipe.exporters import missing_images, missing_keys
 
     why = missing_keys(store, list(REQUIRED) + [f"obs/{k}" for k in info.obs_keys])
-    return why or (None if store.n_episodes else "no episodes")
+    why = why or (None if store.n_episodes else "no episodes") or missing_images(store)
+    narrow = [c for c, (_, w) in store_cameras(store.attrs).items() if w < MIN_VIDEO_WIDTH]
+    if why is None and narrow:
+        why = f"camera {narrow[0]!r} is narrower than {MIN_VIDEO_WIDTH} px (its video encoder)"
+    return why
 
 
-def state_names(store: EpisodeStore, obs_keys) -> list[str]:
-    """Per-dimension names of observation.state: <key>.<x|y|z|w> for up to 4 values (a
+def is_robot_key(key: str) -> bool:
+    """An observation key of the robot (observation.state), not of an object: eef_pos,
+    eef_quat, gripper_qpos; eef_to_<obj>_pos is the object's, seen from the gripper."""
+    return key.startswith(("eef_", "gripper_")) and not key.startswith("eef_to_")
+
+
+def state_keys(obs_keys: Sequence[str]) -> dict[str, list[str]]:
+    """Feature -> the observation keys it concatenates: observation.state (the robot's) and
+    observation.environment_state (the objects'); a feature without keys is left out."""
+    robot = [k for k in obs_keys if is_robot_key(k)]
+    objects = [k for k in obs_keys if not is_robot_key(k)]
+    out = {"observation.state": robot, "observation.environment_state": objects}
+    return {feature: keys for feature, keys in out.items() if keys}
+
+
+def observation_features(
+    obs: Mapping[str, np.ndarray], parts: Mapping[str, Sequence[str]]
+) -> dict[str, np.ndarray]:
+    """The low-dim features of N frames from our observations (key -> (N, ...) array), each
+    feature of ``parts`` (:func:`state_keys`) its keys concatenated in order, float32 (N, D).
+    The export writes them; a policy trained on it is given them in rollouts
+    (mimicgen_pipe.external.lerobot)."""
+    return {
+        feature: np.concatenate(
+            [np.asarray(obs[k]).reshape(len(obs[k]), -1) for k in keys], axis=1
+        ).astype(np.float32)
+        for feature, keys in parts.items()
+    }
+
+
+def state_names(store: EpisodeStore, obs_keys: Sequence[str]) -> list[str]:
+    """Per-dimension names of the keys' concatenation: <key>.<x|y|z> for up to 3 values (a
     quaternion's are w, x, y, z: <key>.0 ... <key>.3), else <key>.<i>."""
     names = []
     for key in obs_keys:
@@ -55,6 +121,11 @@ def state_names(store: EpisodeStore, obs_keys) -> list[str]:
         axes = _AXES if width <= 3 else None
         names += [f"{key}.{axes[i] if axes else i}" for i in range(width)]
     return names
+
+
+def subtask_text(name: str) -> str:
+    """A subtask's words as the task sentence has them: grasp_cubeA -> "grasp cubeA"."""
+    return name.replace("_", " ")
 
 
 def _column(x: np.ndarray) -> pa.Array:
@@ -74,46 +145,179 @@ def _stats(x: np.ndarray) -> dict[str, list]:
     return {k: v.tolist() for k, v in out.items()} | {"count": [len(x)]}
 
 
+def sampled_frames(length: int) -> np.ndarray:
+    """The frames of an episode LeRobot computes image stats over: all of up to 100, else
+    evenly spaced, length ** 0.75 of them (at least 100, at most 10000)."""
+    n = min(length, max(100, min(int(length**0.75), 10_000)))
+    return np.round(np.linspace(0, length - 1, n)).astype(int)
+
+
+def image_stats(images: np.ndarray) -> dict[str, np.ndarray]:
+    """One episode's image stats as LeRobot computes them: per channel over the pixels of
+    its sampled frames, in [0, 1], each (3, 1, 1); count: the frames sampled. Exact, from
+    each channel's histogram of its 256 levels (quantiles interpolated as numpy's)."""
+    frames = images[sampled_frames(len(images))]
+    levels = np.arange(256, dtype=np.float64)
+    out: dict[str, list] = {}
+    for channel in frames.reshape(-1, 3).T:
+        counts = np.bincount(channel, minlength=256)
+        n, cum = len(channel), np.cumsum(counts)
+        mean = counts @ levels / n
+        found = {"min": levels[counts > 0][0], "max": levels[counts > 0][-1], "mean": mean,
+                 "std": np.sqrt(counts @ (levels - mean) ** 2 / n)}  # fmt: skip
+        for q in QUANTILES:
+            at = q * (n - 1)
+            lo, hi = np.searchsorted(cum, [np.floor(at), np.ceil(at)], side="right")
+            found[f"q{round(q * 100):02d}"] = lo + (at - np.floor(at)) * (hi - lo)
+        for k, v in found.items():
+            out.setdefault(k, []).append(v / 255.0)
+    return {k: np.reshape(v, (3, 1, 1)) for k, v in out.items()} | {
+        "count": np.array([len(frames)])
+    }
+
+
+def aggregate_image_stats(per_episode: Sequence[dict[str, np.ndarray]]) -> dict[str, list]:
+    """Dataset image stats from per-episode ones, as LeRobot aggregates them: min of mins, max
+    of maxes, count-weighted mean, pooled std and count-weighted quantiles."""
+    counts = np.array([float(s["count"][0]) for s in per_episode])[:, None, None, None]
+    total = counts.sum()
+    means = np.stack([s["mean"] for s in per_episode])
+    mean = (means * counts).sum(0) / total
+    var = (np.stack([s["std"] for s in per_episode]) ** 2 + (means - mean) ** 2) * counts
+    out = {
+        "min": np.min([s["min"] for s in per_episode], axis=0),
+        "max": np.max([s["max"] for s in per_episode], axis=0),
+        "mean": mean,
+        "std": np.sqrt(var.sum(0) / total),
+    }
+    for q in QUANTILES:
+        key = f"q{round(q * 100):02d}"
+        out[key] = (np.stack([s[key] for s in per_episode]) * counts).sum(0) / total
+    return {k: v.tolist() for k, v in out.items()} | {"count": [int(total)]}
+
+
 def _hf_features(features: dict) -> bytes:
-    """Hugging Face ``datasets`` feature types (schema metadata), so it restores them exactly."""
+    """Hugging Face ``datasets`` feature types (schema metadata), so it restores them exactly;
+    videos are not in the parquet files."""
     out = {}
     for key, ft in features.items():
+        if ft["dtype"] == "video":
+            continue
         value = {"dtype": ft["dtype"], "_type": "Value"}
         out[key] = value if ft["shape"] == [1] else {
             "feature": value, "length": ft["shape"][0], "_type": "List"}  # fmt: skip
     return json.dumps({"info": {"features": out}}).encode()
 
 
-def _tasks_table(tasks: list[str]) -> pa.Table:
-    """meta/tasks.parquet: LeRobot reads it with pandas, indexed by the task string."""
+def _index_table(index_name: str | None, column: str, strings: list[str]) -> pa.Table:
+    """A parquet table as pandas writes a DataFrame indexed by strings with one int64 column
+    ``column`` = 0, 1, ... (LeRobot reads tasks.parquet and subtasks.parquet with pandas and
+    finds a row's string as its index)."""
+    field = index_name or "__index_level_0__"
     pandas_meta = {
-        "index_columns": ["__index_level_0__"],
+        "index_columns": [field],
         "column_indexes": [],
         "columns": [
-            {"name": "task_index", "field_name": "task_index", "pandas_type": "int64",
+            {"name": column, "field_name": column, "pandas_type": "int64",
              "numpy_type": "int64", "metadata": None},
-            {"name": None, "field_name": "__index_level_0__", "pandas_type": "unicode",
+            {"name": index_name, "field_name": field, "pandas_type": "unicode",
              "numpy_type": "object", "metadata": None},
         ],
         "creator": {"library": "pyarrow", "version": pa.__version__},
         "pandas_version": "2.2.3",
     }  # fmt: skip
-    table = pa.table({"task_index": pa.array(np.arange(len(tasks), dtype=np.int64)),
-                      "__index_level_0__": pa.array(tasks, type=pa.string())})  # fmt: skip
+    table = pa.table({column: pa.array(np.arange(len(strings), dtype=np.int64)),
+                      field: pa.array(strings, type=pa.string())})  # fmt: skip
     return table.replace_schema_metadata({"pandas": json.dumps(pandas_meta).encode()})
 
 
-def write(store: EpisodeStore, path: Path, info) -> None:
+def _next_file(chunk: int, file: int) -> tuple[int, int]:
+    """The (chunk, file) index after this one, as LeRobot numbers them."""
+    return (chunk + 1, 0) if file == CHUNKS_SIZE - 1 else (chunk, file + 1)
+
+
+def write_video(
+    root: Path, video_key: str, episodes: Any, fps: int, size: tuple[int, int]
+) -> tuple[dict[str, list], list[dict[str, np.ndarray]], int]:
+    """Encode a camera's episodes (an iterable of (T_i, H, W, 3) uint8 arrays, ``size`` (H, W))
+    into the videos of ``video_key``, one after the other, a new file when the current one
+    passes VIDEO_FILE_MB. Returns the episodes' ``videos/<key>/...`` columns, their image
+    stats and the bytes written."""
+    import av
+
+    # SVT-AV1 prints its banner and settings to stderr at every encoder start unless told not to
+    os.environ.setdefault("SVT_LOG", "1")
+    names = ("chunk_index", "file_index", "from_timestamp", "to_timestamp")
+    columns: dict[str, list] = {k: [] for k in names}
+    stats = []
+    index, container, stream, frames, size_now = (0, 0), None, None, 0, 0
+
+    def close() -> None:
+        for packet in stream.encode():
+            container.mux(packet)
+        container.close()
+
+    for images in episodes:
+        if container is not None and size_now >= VIDEO_FILE_MB * 1024 * 1024:
+            close()
+            index, container = _next_file(*index), None
+        if container is None:
+            path = root / VIDEO_PATH.format(
+                video_key=video_key, chunk_index=index[0], file_index=index[1]
+            )
+            path.parent.mkdir(parents=True, exist_ok=True)
+            container = av.open(str(path), "w")
+            stream = container.add_stream(VIDEO_CODEC, fps, options=VIDEO_OPTIONS)
+            stream.pix_fmt, stream.height, stream.width = VIDEO_PIX_FMT, *size
+            frames = size_now = 0
+        for image in images:
+            for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")):
+                size_now += packet.size
+                container.mux(packet)
+        columns["chunk_index"].append(index[0])
+        columns["file_index"].append(index[1])
+        columns["from_timestamp"].append(frames / fps)
+        frames += len(images)
+        columns["to_timestamp"].append(frames / fps)
+        stats.append(image_stats(images))
+    if container is not None:
+        close()
+    written = sum(f.stat().st_size for f in (root / "videos" / video_key).rglob("*.mp4"))
+    return {f"videos/{video_key}/{k}": v for k, v in columns.items()}, stats, written
+
+
+def video_feature(size: tuple[int, int], fps: int) -> dict[str, Any]:
+    """info.json's feature of a camera's video, with the ``info`` LeRobot records."""
+    h, w = size
+    return {
+        "dtype": "video",
+        "shape": [h, w, 3],
+        "names": ["height", "width", "channels"],
+        "info": {
+            "video.height": h,
+            "video.width": w,
+            "video.codec": "av1",
+            "video.pix_fmt": VIDEO_PIX_FMT,
+            "video.is_depth_map": False,
+            "video.fps": int(fps),
+            "video.channels": 3,
+            "has_audio": False,
+        },
+    }
+
+
+def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
+    from mimicgen_pipe.exporters import episode_images, subtask_labels
+
     path = Path(path)
     (path / "meta").mkdir(parents=True)
     n_steps = int(store.episode_ends[-1])
     lengths = store.lengths
     episode_index = np.repeat(np.arange(store.n_episodes, dtype=np.int64), lengths)
     frame_index = np.arange(n_steps, dtype=np.int64) - np.repeat(store.episode_starts, lengths)
-    frames = {
-        "observation.state": np.concatenate(
-            [store.data[f"obs/{k}"].reshape(n_steps, -1) for k in info.obs_keys], axis=1
-        ).astype(np.float32),
+    parts = state_keys(info.obs_keys)
+    frames = observation_features({k: store.data[f"obs/{k}"] for k in info.obs_keys}, parts)
+    frames |= {
         "action": store.data["actions"].astype(np.float32),
         "timestamp": (frame_index / info.fps).astype(np.float32),
         "frame_index": frame_index,
@@ -121,11 +325,17 @@ def write(store: EpisodeStore, path: Path, info) -> None:
         "index": np.arange(n_steps, dtype=np.int64),
         "task_index": np.zeros(n_steps, np.int64),
     }
-    features = {
-        "observation.state": {"dtype": "float32", "shape": [frames["observation.state"].shape[1]],
-                              "names": state_names(store, info.obs_keys)},
-        "action": {"dtype": "float32", "shape": [7], "names": ACTION_NAMES},
-    } | INDEX_FEATURES  # fmt: skip
+    features: dict[str, dict] = {
+        feature: {"dtype": "float32", "shape": [frames[feature].shape[1]],
+                  "names": state_names(store, keys)}
+        for feature, keys in parts.items()
+    }  # fmt: skip
+    features["action"] = {"dtype": "float32", "shape": [7], "names": ACTION_NAMES}
+    labels = subtask_labels(store, info.subtasks)
+    if labels is not None:
+        frames["subtask_index"] = labels
+        features["subtask_index"] = {"dtype": "int64", "shape": [1], "names": None}
+    features |= INDEX_FEATURES
     table = pa.table({k: _column(v) for k, v in frames.items()})
     data_file = path / DATA_PATH.format(chunk_index=0, file_index=0)
     data_file.parent.mkdir(parents=True)
@@ -143,16 +353,34 @@ def write(store: EpisodeStore, path: Path, info) -> None:
         "dataset_from_index": starts.tolist(),
         "dataset_to_index": ends.tolist(),
     }
+    stats = {key: _stats(values) for key, values in frames.items()}
     for key, values in frames.items():
         per_episode = [_stats(values[s:e]) for s, e in zip(starts, ends, strict=True)]
         for stat in per_episode[0]:
             episodes[f"stats/{key}/{stat}"] = [p[stat] for p in per_episode]
+    image_bytes = 0
+    for camera, size in store_cameras(store.attrs).items():
+        key = f"observation.images.{camera}"
+        columns, per_episode, written = write_video(
+            path, key, episode_images(store, camera), info.fps, size
+        )
+        episodes |= columns
+        for stat in per_episode[0]:
+            episodes[f"stats/{key}/{stat}"] = [p[stat].tolist() for p in per_episode]
+        stats[key] = aggregate_image_stats(per_episode)
+        features[key] = video_feature(size, info.fps)
+        image_bytes += written
     episodes["meta/episodes/chunk_index"] = [0] * store.n_episodes
     episodes["meta/episodes/file_index"] = [0] * store.n_episodes
     (path / EPISODES_PATH).parent.mkdir(parents=True)
     pq.write_table(pa.table(episodes), path / EPISODES_PATH)
-    pq.write_table(_tasks_table([info.task_description]), path / "meta/tasks.parquet")
-    stats = {key: _stats(values) for key, values in frames.items()}
+    tasks = _index_table(None, "task_index", [info.task_description])
+    pq.write_table(tasks, path / "meta/tasks.parquet")
+    if labels is not None:
+        names = [subtask_text(s.name) for s in info.subtasks]
+        pq.write_table(
+            _index_table("subtask", "subtask_index", names), path / "meta/subtasks.parquet"
+        )
     (path / "meta/stats.json").write_text(json.dumps(stats, indent=2))
     meta = {
         "codebase_version": CODEBASE_VERSION,
@@ -160,13 +388,14 @@ def write(store: EpisodeStore, path: Path, info) -> None:
         "total_episodes": store.n_episodes,
         "total_frames": n_steps,
         "total_tasks": 1,
-        "chunks_size": 1000,
+        "chunks_size": CHUNKS_SIZE,
         "data_files_size_in_mb": 100,
-        "video_files_size_in_mb": 200,
+        "video_files_size_in_mb": VIDEO_FILE_MB,
         "fps": int(info.fps),
         "splits": {"train": f"0:{store.n_episodes}"},
         "data_path": DATA_PATH,
-        "video_path": None,
+        "video_path": VIDEO_PATH if store_cameras(store.attrs) else None,
         "features": features,
     }
     (path / "meta/info.json").write_text(json.dumps(meta, indent=2))
+    return {"image_bytes": image_bytes}

@@ -111,13 +111,15 @@ def write(
     replays: Sequence[Replayed],
     layout: Sequence[tuple[str, str, int]],
     env_info: dict,
-) -> None:
+) -> dict[str, int]:
     """``path`` (.h5, its .json beside it) with the store's own actions, and the
     pd_joint_pos copy beside it. ``replays``: one per stored episode, in order; ``layout``:
-    (kind, name, width) of the flat state's parts; ``env_info``: the json's env_info."""
+    (kind, name, width) of the flat state's parts; ``env_info``: the json's env_info. No
+    figures for the metrics (no images)."""
     if len(replays) != store.n_episodes:
         raise ValueError(f"{len(replays)} replays for {store.n_episodes} episodes")
     mode = env_info["env_kwargs"]["control_mode"]
     _write_file(path, store, replays, layout, env_info, mode)
     joint = path.with_name(path.stem + JOINT_FILE_SUFFIX + path.suffix)
     _write_file(joint, store, replays, layout, env_info, "pd_joint_pos")
+    return {}

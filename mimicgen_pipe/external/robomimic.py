@@ -1,0 +1,82 @@
+"""A robomimic checkpoint (``.pth``, as robomimic's ``train.py`` saves it), trained on our
+robomimic export: its inputs are the export's ``obs/<key>`` names, our observation keys.
+
+The server loads it with ``torch.load(weights_only=True)``, which rebuilds tensors,
+numbers, strings, lists and dicts alone (robomimic's checkpoints hold nothing else), and
+robomimic's own ``policy_from_checkpoint``: the policy acts as in robomimic's rollouts
+(its RNN context, its action sampling), its random state seeded at each reset.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+DESCRIPTION = "robomimic checkpoint .pth file"
+
+
+def why_not(path: Path) -> str | None:
+    """A file torch.save wrote (a zip archive with a data.pkl), else why not."""
+    if not path.is_file():
+        return f"{path}: no such file"
+    if not zipfile.is_zipfile(path):
+        return f"{path}: not a checkpoint torch saved (not a zip archive)"
+    with zipfile.ZipFile(path) as z:
+        if not any(n.endswith("/data.pkl") for n in z.namelist()):
+            return f"{path}: a zip archive without data.pkl, not a checkpoint torch saved"
+    return None
+
+
+def observation(obs: dict[str, np.ndarray], obs_keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The export's ``obs/<key>`` arrays are our observation's, key for key (a camera's
+    images too: ``<camera>_image``, uint8 HWC)."""
+    return dict(obs)
+
+
+def image_key(camera: str) -> str:
+    return f"{camera}_image"
+
+
+class RobomimicPolicy:
+    """The checkpoint at ``path`` as robomimic's RolloutPolicy, on the CPU."""
+
+    def __init__(self, path: str) -> None:
+        import robomimic.utils.file_utils as file_utils
+        import robomimic.utils.obs_utils as obs_utils
+        import torch
+
+        self._torch, self._obs_utils = torch, obs_utils
+        # one thread, like the evaluator's workers: its env steps in the other process
+        torch.set_num_threads(1)
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        self.policy, _ = file_utils.policy_from_checkpoint(
+            device=torch.device("cpu"), ckpt_dict=ckpt
+        )
+        shapes = ckpt["shape_metadata"]["all_shapes"]
+        self.observations: dict[str, dict[str, Any]] = {}
+        for key in ckpt["shape_metadata"]["all_obs_keys"]:
+            if obs_utils.key_is_obs_modality(key, "rgb"):
+                c, h, w = shapes[key]  # robomimic's processed image: CHW float in [0, 1]
+                self.observations[key] = {"shape": [h, w, c], "dtype": "uint8"}
+            elif obs_utils.key_is_obs_modality(key, "low_dim"):
+                self.observations[key] = {"shape": list(shapes[key]), "dtype": "float32"}
+            else:
+                raise ValueError(f"observation {key!r}: a modality other than low_dim and rgb")
+        self.action_dim = int(ckpt["shape_metadata"]["ac_dim"])
+        self.meta = {"env_kwargs": (ckpt.get("env_metadata") or {}).get("env_kwargs")}
+
+    def reset(self, seed: int) -> None:
+        self._torch.manual_seed(seed)
+        np.random.seed(seed % 2**32)
+        self.policy.start_episode()
+
+    def act(self, arrays: dict[str, np.ndarray]) -> np.ndarray:
+        ob = self._obs_utils.process_obs_dict({k: arrays[k] for k in self.observations})
+        return np.asarray(self.policy(ob))
+
+
+def load(path: str, task: str) -> RobomimicPolicy:
+    return RobomimicPolicy(path)

@@ -1,0 +1,217 @@
+"""Camera images of stored episodes (the observe stage): every step's stored ``env_state`` is
+set in a render-only env of the back end and pictured by its cameras (envs/_cameras.py), in
+fixed blocks of episodes on the executor layer (mimicgen_pipe.executors), and written beside
+a copy of the input store's arrays as ``data/obs/<camera>_image`` (N_steps, H, W, 3) uint8
+RGB, chunked along the steps (docs/data-contract.md).
+
+A picture depends on the state alone, and blocks are written in order, so the store is the
+same for any number of workers; a killed run resumes from its finished blocks
+(mimicgen_pipe.resume).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.executors import Executor, map_blocks
+from mimicgen_pipe.interrupts import Interrupted
+from mimicgen_pipe.outputs import content_digest, run_id
+from mimicgen_pipe.params import Params, data_params
+from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
+from mimicgen_pipe.store import StoreView, StoreWriter, image_key, store_cameras
+
+EPISODES_PER_BLOCK = 2  # ~440 pictures per block on stack_cube: 15-30 s of work
+
+
+@dataclass(frozen=True)
+class ObserveJob:
+    """What a worker needs, sent once per worker: the store whose states it renders and the
+    renderer's settings. Image sizes in pixels."""
+
+    store: Path
+    backend: str
+    task: str
+    robot: str
+    cameras: tuple[str, ...]
+    height: int
+    width: int
+
+
+def check_input(view: StoreView, params: Params, where: str) -> int:
+    """The number of episodes observed (observe.episodes, null: all), after checking before
+    any work that ``view`` can be observed as ``params`` say: it has env_state and no images
+    yet, its arm has every camera asked for (``where``: the params file, for the message)
+    and it holds that many episodes. InputError otherwise."""
+    import envs
+
+    o = params.observe
+    if "env_state" not in view.data_keys:
+        raise InputError(
+            f"{view.path}: no data/env_state (the stored simulator states images are rendered "
+            "from); observe a source, generated or failed store"
+        )
+    if store_cameras(view.attrs):
+        raise InputError(
+            f"{view.path}: has images already (cameras {list(store_cameras(view.attrs))}); "
+            "observe the store it was observed from"
+        )
+    backend, robot = view.attrs["backend"], view.attrs["robot"]
+    envs.check_cameras(backend, robot, o.cameras, f"{where}: observe.cameras")
+    if o.episodes is not None and o.episodes > view.n_episodes:
+        raise InputError(
+            f"{where}: observe.episodes {o.episodes}: {view.path} has {view.n_episodes} episodes"
+        )
+    return view.n_episodes if o.episodes is None else o.episodes
+
+
+def observe_run_id(params: Params, attrs: Mapping[str, Any], states: np.ndarray) -> str:
+    """The id of an observe run: the observe params (no worker count), the back end, task and
+    arm, and the states rendered."""
+    shaping = {k: attrs.get(k) for k in ("backend", "task", "robot")}
+    return run_id(shaping | data_params(params, "observe"), content_digest({"env_state": states}))
+
+
+def episode_blocks(n_episodes: int, per_block: int = EPISODES_PER_BLOCK) -> list[list[int]]:
+    """The fixed blocks of episode indices the pictures are taken in."""
+    return [list(range(s, min(s + per_block, n_episodes))) for s in range(0, n_episodes, per_block)]
+
+
+# a block's result: camera -> (rows, H, W, 3) images, and "seconds/<camera>" -> (1,) float64
+# seconds spent on that camera's pictures (its share of the scene updates included)
+BlockImages = dict[str, np.ndarray]
+
+
+class ImageBlockCodec:
+    """A block's images as the plain arrays a work directory keeps, and back; accepted only
+    for the block index whose steps they hold (``blocks``, the episodes' ``lengths``)."""
+
+    def __init__(self, blocks: Sequence[Sequence[int]], lengths: np.ndarray, job: ObserveJob):
+        self.blocks, self.lengths, self.job = blocks, lengths, job
+
+    def encode(self, index: int, result: BlockImages) -> dict[str, np.ndarray]:
+        return dict(result)
+
+    def decode(self, index: int, arrays: Mapping[str, np.ndarray]) -> BlockImages:
+        if not 0 <= index < len(self.blocks):
+            raise BadBlock(f"no block {index} in a run of {len(self.blocks)} blocks")
+        rows = int(self.lengths[list(self.blocks[index])].sum())
+        j = self.job
+        for camera in j.cameras:
+            a = arrays[camera]
+            if a.dtype != np.uint8 or a.shape != (rows, j.height, j.width, 3):
+                raise BadBlock(f"{camera}: {a.dtype} {a.shape}, expected uint8 {rows} rows")
+            if arrays[f"seconds/{camera}"].shape != (1,):
+                raise BadBlock(f"seconds/{camera}: shape {arrays[f'seconds/{camera}'].shape}")
+        return {k: arrays[k] for k in arrays}
+
+
+_WORKER: tuple[ObserveJob, Any, StoreView] | None = None
+
+
+def _init_worker(job: ObserveJob) -> None:
+    global _WORKER
+    from mimicgen_pipe.store import open_store
+    from mimicgen_pipe.video import make_renderer
+
+    renderer = make_renderer(job.backend, job.task, job.robot, job.width, job.height, job.cameras)
+    _WORKER = (job, renderer, open_store(job.store))
+
+
+def _render_block(episodes: list[int]) -> BlockImages:
+    """Every step of ``episodes`` pictured by every camera of the worker's job."""
+    assert _WORKER is not None
+    job, renderer, view = _WORKER
+    states = view.read_rows("env_state", episodes)
+    out = {c: np.empty((len(states), job.height, job.width, 3), np.uint8) for c in job.cameras}
+    before = dict(renderer.seconds)
+    for t, state in enumerate(states):
+        for camera, image in renderer.images(state).items():
+            out[camera][t] = image
+    seconds = {c: renderer.seconds[c] - before[c] for c in job.cameras}
+    return out | {f"seconds/{c}": np.array([seconds[c]]) for c in job.cameras}
+
+
+def open_work_dir(out: Path, run: str, codec: ImageBlockCodec) -> WorkDir:
+    """The work directory beside ``out`` of observe run ``run``: blocks that an earlier,
+    killed run of the same run, blocks (``codec.blocks``) and code finished are reused."""
+    per_block = len(codec.blocks[0]) if codec.blocks else 0
+    key = f"{run}/{per_block}/{code_digest('mimicgen_pipe', 'envs')}"
+    work = WorkDir.open(out, key, codec)
+    for line in work.discarded:
+        print(f"observe: {line}")
+    if work.resumed:
+        print(f"observe: resuming: {len(work.resumed)} finished blocks of episodes in {work.path}")
+    return work
+
+
+def render_blocks(
+    job: ObserveJob,
+    blocks: Sequence[list[int]],
+    executor: Executor,
+    work: WorkDir | None = None,
+) -> Iterator[BlockImages]:
+    """The images of each block of episodes, in block order (finished blocks saved in and
+    reused from ``work``)."""
+    return map_blocks(_render_block, blocks, executor, _init_worker, (job,), work)
+
+
+def write_observed(
+    writer: StoreWriter,
+    view: StoreView,
+    job: ObserveJob,
+    images: Iterator[BlockImages],
+    blocks: Sequence[list[int]],
+    label: str,
+    work: WorkDir | None = None,
+) -> dict[str, float]:
+    """Into ``writer``: every array of ``view`` for the episodes of ``blocks``, as stored,
+    then each camera's images as the blocks' ``images`` come (one block in memory at a time).
+    Returns the seconds spent per camera. ``label`` names the progress bar."""
+    chosen = [e for block in blocks for e in block]
+    for key in view.data_keys:
+        writer.array(key, view.read_rows(key, chosen))
+    for key in view.episode_keys:
+        writer.episode_field(key, view.episode_field(key)[: len(chosen)])
+    rows = {c: writer.rows(image_key(c), (job.height, job.width, 3), np.uint8) for c in job.cameras}
+    seconds = dict.fromkeys(job.cameras, 0.0)
+    bar = tqdm(total=len(chosen), desc=label, unit="episode")
+    done = 0
+    try:
+        for block, result in zip(blocks, images, strict=True):
+            for camera, writer_rows in rows.items():
+                writer_rows.append(result[camera])
+                seconds[camera] += float(result[f"seconds/{camera}"][0])
+            done += len(block)
+            bar.update(len(block))
+    except Interrupted as exc:
+        exc.detail = f"after {done} of {len(chosen)} episodes"
+        if work is not None:
+            exc.detail += f"; finished blocks kept in {work.path} (the same command resumes)"
+        raise
+    finally:
+        bar.close()
+    for writer_rows in rows.values():
+        writer_rows.close()
+    return seconds
+
+
+def observe_metrics(
+    store: Path, job: ObserveJob, frames: int, n_episodes: int, seconds: Mapping[str, float]
+) -> dict[str, Any]:
+    """The observe stage's numbers for the ``store`` it wrote: episodes, frames (steps) per
+    camera, ms per frame per camera, MB of stored (compressed) images per 1000 demos."""
+    out: dict[str, Any] = {"episodes": n_episodes, "frames": frames}
+    total = 0
+    for camera in job.cameras:
+        files = (store / "data" / image_key(camera)).rglob("*")
+        total += sum(f.stat().st_size for f in files if f.is_file())
+        out[f"ms_per_frame_{camera}"] = round(1000 * seconds[camera] / max(1, frames), 2)
+    out["image_mb_per_1000_demos"] = round(total / 2**20 * 1000 / max(1, n_episodes), 1)
+    return out

@@ -1,0 +1,160 @@
+"""evaluate_external: roll out a policy trained elsewhere (robomimic or LeRobot, on our
+export) in one reset variant, from the scenes the evaluate stage rolls our checkpoints out
+from, with the same metrics. Its framework runs in its own Python (mimicgen_pipe.external).
+No pipeline stage: a command for policies trained outside it."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import functools
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import envs
+from mimicgen_pipe import layout
+from mimicgen_pipe.evaluation import (
+    EvalJob,
+    Rollout,
+    evaluate_policies,
+    evaluation_seed,
+    success_rate,
+)
+from mimicgen_pipe.executors import stage_executor
+from mimicgen_pipe.exporters import task_description
+from mimicgen_pipe.external import (
+    DEFAULT_PYTHON,
+    PolicySpec,
+    check_python,
+    load_external_policy,
+    parse_policy,
+    policy_digest,
+    probe,
+)
+from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
+from mimicgen_pipe.observations import observation_dims
+from mimicgen_pipe.outputs import claim, output_set
+from mimicgen_pipe.params import Params
+from stages import add_selection_arguments, stage_params
+
+
+def episode_count(text: str) -> int:
+    """--episodes: a whole number, at least 1."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number, at least 1")
+    return int(text)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_selection_arguments(p)
+    p.add_argument(
+        "--policy",
+        required=True,
+        help="robomimic:<checkpoint .pth> or lerobot:<policy directory> (its pretrained_model)",
+    )
+    p.add_argument(
+        "--data",
+        required=True,
+        help='what it was trained on: "source" or a variant (the store whose export it read)',
+    )
+    p.add_argument("--variant", required=True, help="reset variant to evaluate in, e.g. D1")
+    p.add_argument(
+        "--python",
+        help=f"the Python its framework is installed in (default: {DEFAULT_PYTHON}, which "
+        "scripts/setup.sh makes)",
+    )
+    p.add_argument(
+        "--episodes", type=episode_count, help="episodes (default: params evaluate.episodes)"
+    )
+    p.add_argument(
+        "--metrics",
+        help="metrics JSON (default: metrics/external/evaluate_<task>_<data>_on_<variant>_"
+        "<format>.json)",
+    )
+    p.add_argument(
+        "--plot",
+        help="one row per episode: seed, success, steps (default: plots/external/<same>.csv)",
+    )
+
+
+def write_episodes(path: Path, rollouts: list[Rollout]) -> None:
+    """One row per episode: its reset seed, success and steps run."""
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["episode", "seed", "success", "steps"])
+        writer.writerows((i, r.seed, int(r.success), r.steps) for i, r in enumerate(rollouts))
+
+
+def camera_renderer(
+    params: Params, robot: str, cameras: tuple[str, ...], size: tuple[int, int] | None
+) -> Callable[[], Any] | None:
+    """How a worker makes the renderer of the cameras a policy reads (None: it reads none)."""
+    if not cameras or size is None:
+        return None
+    from mimicgen_pipe.video import make_renderer  # image policies alone need a renderer
+
+    height, width = size
+    return functools.partial(
+        make_renderer, params.backend, params.task, robot, width, height, cameras
+    )
+
+
+def run(args: argparse.Namespace) -> None:
+    params = stage_params(args)
+    spec = envs.task_spec(params.backend, params.task)
+    envs.check_variant(spec, args.variant)
+    fmt, path = parse_policy(args.policy)
+    e = params.evaluate
+    episodes = e.episodes if args.episodes is None else args.episodes
+    name = f"{args.data}_on_{args.variant}_{fmt}"
+    default_metrics, default_plot = layout.external_evaluation_files(params.task, name)
+    metrics_path = Path(args.metrics or default_metrics)
+    plot_path = Path(args.plot or default_plot)
+    claim(metrics_path, plot_path, inputs=[path])  # fails at once if another run writes them
+    executor = stage_executor(params, "evaluate")  # refuses unsafe Ray settings before any work
+    # a policy acts with the arm its training data was recorded with
+    robot = params.source.robot if args.data == "source" else params.generate.robot
+    envs.check_robot(params.backend, robot)
+    python = check_python(args.python or str(DEFAULT_PYTHON))
+    policy = PolicySpec(
+        fmt, str(path.resolve()), python, tuple(params.train.obs_keys), task_description(spec)
+    )
+    known = envs.backend_package(params.backend).cameras(robot)
+    env_kwargs = {"backend": params.backend, "task": params.task, "robot": robot}
+    cameras, size = probe(policy, observation_dims(spec.objects), env_kwargs, known)
+    job = EvalJob(
+        make_env=functools.partial(
+            envs.make_env, params.backend, params.task, robot, params.maniskill.lean_step
+        ),
+        load_policy=functools.partial(load_external_policy, policy),
+        variant=args.variant,
+        horizon=spec.horizon,
+        objects=spec.objects,
+        make_cameras=camera_renderer(params, robot, cameras, size),
+    )
+    seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(episodes)]
+    results, wall = evaluate_policies(job, [policy.name], seeds, executor, f"evaluate {name}")
+    rollouts = results[policy.name]
+    # in the terms of our own evaluation: one training run, one checkpoint
+    metrics = evaluation_metrics({0: [(0, success_rate(rollouts))]})
+    metrics.update(
+        policy_format=fmt,
+        policy=str(path),
+        policy_sha256=policy_digest(path),
+        data_run_id=None,
+        episodes=episodes,
+        horizon=spec.horizon,
+        cameras=",".join(cameras),
+        wall_seconds=wall,
+        seconds_per_episode=wall / episodes,
+        workers=e.workers,
+        executor=e.executor,
+    )
+    with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
+        write_episodes(tmp_plot, rollouts)
+        identity = metrics_identity(
+            "evaluate", params.task, params.backend, robot, variant=args.variant, data=args.data
+        )
+        write_metrics(tmp_metrics, identity | metrics)
+    print(f"evaluate {name}: success {metrics['success_rate_max']:.1f}% -> {metrics_path}")

@@ -1,0 +1,86 @@
+"""observe: camera images (observe.cameras) of the first episodes of a generated or source
+store, rendered from each step's stored simulator state, written beside a copy of its arrays
+as an observed store."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from mimicgen_pipe import layout
+from mimicgen_pipe.executors import Executor
+from mimicgen_pipe.metrics import metrics_identity, write_metrics
+from mimicgen_pipe.observe import (
+    ImageBlockCodec,
+    ObserveJob,
+    check_input,
+    episode_blocks,
+    observe_metrics,
+    observe_run_id,
+    open_work_dir,
+    render_blocks,
+    write_observed,
+)
+from mimicgen_pipe.outputs import claim, output_set, store_kind
+from mimicgen_pipe.params import data_params
+from mimicgen_pipe.store import open_store, store_writer
+from stages import add_selection_arguments, stage_params
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_selection_arguments(p)
+    p.add_argument("--variant", required=True, help="reset variant, e.g. D0")
+    p.add_argument(
+        "--store",
+        help="the store to observe (default: data/generated/<task>_<variant>.zarr); a "
+        "generated, failed or source store",
+    )
+    p.add_argument("--out", help="observed store (default: data/observed/<task>_<variant>.zarr)")
+    p.add_argument(
+        "--metrics", help="metrics JSON (default: metrics/observe_<task>_<variant>.json)"
+    )
+
+
+def run(args: argparse.Namespace) -> None:
+    params = stage_params(args)
+    o = params.observe
+    store_path = Path(args.store or layout.generated_store(params.task, args.variant))
+    out = Path(args.out or layout.observed_store(params.task, args.variant))
+    metrics_path = Path(args.metrics or layout.metrics_file("observe", params.task, args.variant))
+    view = open_store(store_path, task=params.task)
+    n = check_input(view, params, args.params)
+    a = view.attrs
+    kind = a["kind"]
+    claim((out, store_kind(kind)), metrics_path, inputs=[store_path])
+    job = ObserveJob(
+        store_path, a["backend"], params.task, a["robot"], tuple(o.cameras), o.height, o.width
+    )
+    blocks = episode_blocks(n)
+    run_id = observe_run_id(params, a, view.read_rows("env_state", range(n)))
+    work = open_work_dir(out, run_id, ImageBlockCodec(blocks, view.lengths, job))
+    attrs = dict(a) | {
+        "cameras": {c: {"height": o.height, "width": o.width} for c in o.cameras},
+        "observe": data_params(params, "observe")["observe"],
+    }
+    t0 = time.perf_counter()
+    with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
+        images = render_blocks(job, blocks, Executor("local", o.workers), work)
+        try:
+            with store_writer(tmp_out, kind, view.episode_ends[:n], attrs) as writer:
+                label = f"observe {params.task} {args.variant}"
+                seconds = write_observed(writer, view, job, images, blocks, label, work)
+        finally:
+            images.close()
+        frames = int(view.episode_ends[n - 1]) if n else 0
+        metrics = observe_metrics(tmp_out, job, frames, n, seconds)
+        metrics["seconds"] = round(time.perf_counter() - t0, 1)
+        identity = metrics_identity(
+            "observe", params.task, a["backend"], a["robot"], variant=args.variant
+        )
+        write_metrics(tmp_metrics, identity | metrics)
+    work.remove()
+    print(
+        f"observe: {metrics['frames']} steps x {len(o.cameras)} cameras of {n} episodes "
+        f"({metrics['image_mb_per_1000_demos']} MB of images per 1000 demos) -> {out}"
+    )

@@ -1,0 +1,436 @@
+"""Policies trained elsewhere (mimicgen_pipe.external): the wire format, the server loop with
+a stand-in policy under this virtualenv's Python (tests/external_stand_in.py), the errors
+before and during rollouts, and the evaluator's loop over them on a tiny fake env. The
+round trip through robomimic's own training, with its check virtualenv, is marked slow."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mimicgen_pipe import external
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.evaluation import EvalJob, evaluate_policies, success_rate
+from mimicgen_pipe.executors import Executor
+from mimicgen_pipe.external import (
+    ExternalPolicy,
+    PolicySpec,
+    _serve,
+    check_hello,
+    parse_policy,
+    policy_cameras,
+    provided_inputs,
+)
+from mimicgen_pipe.observations import observation_dims
+from tests.conftest import REPO, SMALL_PARAMS, cli
+
+STAND_IN = REPO / "tests" / "external_stand_in.py"
+CAMERAS = ("agentview", "eye_in_hand")
+LOW_DIM = {"eef_pos": {"shape": [3], "dtype": "float32"},
+           "gripper_qpos": {"shape": [2], "dtype": "float32"}}  # fmt: skip
+OBS = {"eef_pos": np.array([0.1, 0.2, 0.3], np.float32),
+       "gripper_qpos": np.array([0.04, 0.04], np.float32),
+       "cubeA_pos": np.array([1.0, 2.0, 3.0], np.float32)}  # fmt: skip
+
+
+def stand_in(tmp_path: Path, **config) -> list[str]:
+    """The command line of a stand-in server with this config (see external_stand_in.py)."""
+    path = tmp_path / f"stand_in_{len(list(tmp_path.glob('stand_in_*')))}.json"
+    path.write_text(json.dumps({"observations": LOW_DIM} | config))
+    return [sys.executable, str(STAND_IN), "--format", "stand_in", "--path", str(path),
+            "--task", "stack_cube: grasp cubeA, then place on cubeB"]  # fmt: skip
+
+
+def open_stand_in(tmp_path: Path, act_seconds: float = 60.0, **config) -> ExternalPolicy:
+    return ExternalPolicy(
+        stand_in(tmp_path, **config), dict, "stand_in:test", act_seconds=act_seconds
+    )
+
+
+def test_messages_round_trip_and_refuse_pickles():
+    arrays = {"image": np.arange(12, dtype=np.uint8).reshape(2, 2, 3),
+              "state": np.array([1.5, -2.0], np.float32)}  # fmt: skip
+    data = _serve.encode({"op": "act", "n": 3}, arrays)
+    (size,) = _serve.LENGTH.unpack(data[: _serve.LENGTH.size])
+    assert size == len(data) - _serve.LENGTH.size
+    header, back = _serve.read_message(io.BytesIO(data))
+    assert header == {"op": "act", "n": 3}
+    assert back.keys() == arrays.keys()
+    for k, v in arrays.items():
+        assert back[k].dtype == v.dtype and np.array_equal(back[k], v)
+    assert _serve.read_message(io.BytesIO(b"")) is None
+    with pytest.raises(EOFError):
+        _serve.read_message(io.BytesIO(data[:-3]))
+    # an object array would need unpickling: refused
+    buf = io.BytesIO()
+    np.savez(buf, header=np.array(json.dumps({"op": "act"})), x=np.array([{"a": 1}], object))
+    with pytest.raises(ValueError, match="pickle"):
+        _serve.decode(buf.getvalue())
+
+
+def test_stand_in_policy_acts_through_its_server(tmp_path):
+    """Hello, reset, act and close over the server's pipes: the action answers the
+    observations sent (a print during loading reaches stderr, not the messages), the same
+    seed gives the same action, and the server exits when closed."""
+    with open_stand_in(tmp_path, meta={"env_kwargs": {"task": "stack_cube"}}) as policy:
+        assert policy.hello["observations"] == LOW_DIM
+        assert policy.hello["action_dim"] == 7
+        assert policy.hello["meta"] == {"env_kwargs": {"task": "stack_cube"}}
+        assert policy.keys == ("eef_pos", "gripper_qpos")
+        actions = []
+        for seed in (5, 5, 6):
+            policy.reset(seed)
+            actions.append(policy.act(OBS))
+        sums = [0.6, 0.08]  # eef_pos, gripper_qpos, cycled over the 7 numbers
+        expected = np.array([sums[i % 2] for i in range(7)], np.float32)
+        assert actions[0].dtype == np.float32 and actions[0].shape == (7,)
+        np.testing.assert_allclose(actions[0], expected, atol=0.05)
+        np.testing.assert_array_equal(actions[0], actions[1])
+        assert not np.array_equal(actions[0], actions[2])
+        proc = policy._proc
+    assert proc.returncode == 0
+
+
+def test_server_run_by_path_refuses_an_unknown_format(tmp_path):
+    """_serve.py as the frameworks run it (by path, its folder off sys.path): a format it
+    does not know is its hello's error, which the client raises as one InputError."""
+    command = [sys.executable, str(external.SERVER), "--format", "nosuch", "--path", "x"]
+    with pytest.raises(InputError, match=r"cannot load the policy: .*'nosuch': unknown "
+                       r"\(known: lerobot, robomimic\)"):  # fmt: skip
+        ExternalPolicy(command, dict, "nosuch:x")
+
+
+def test_a_server_that_fails_ends_or_hangs_is_one_error_not_a_hang(tmp_path):
+    with pytest.raises(InputError, match="failed while loading the policy: cannot load the "
+                       "policy: RuntimeError: weights missing"):  # fmt: skip
+        open_stand_in(tmp_path, fail_load="weights missing")
+    policy = open_stand_in(tmp_path, exit_at=2)
+    policy.reset(0)
+    policy.act(OBS)
+    with pytest.raises(InputError, match=r"ended during act \(exit status 3\); its stderr "
+                       "ends: .*stand-in: giving up"):  # fmt: skip
+        policy.act(OBS)
+    policy.close()
+    policy = open_stand_in(tmp_path, act_seconds=1.0, hang_at=1)
+    policy.reset(0)
+    t0 = time.monotonic()
+    with pytest.raises(InputError, match="gave no answer within 1 s during act"):
+        policy.act(OBS)
+    assert time.monotonic() - t0 < 10
+    assert policy._proc.returncode is not None  # stopped, not left behind
+    policy.close()
+    with pytest.raises(InputError, match="cannot start its server"):
+        ExternalPolicy([str(tmp_path / "no_python")], dict, "x:y")
+
+
+def spec(fmt: str = "robomimic") -> PolicySpec:
+    return PolicySpec(fmt, "/p", sys.executable, ("eef_pos", "gripper_qpos", "cubeA_pos"), "")
+
+
+def test_a_policy_whose_inputs_our_env_lacks_is_refused_naming_them():
+    dims = observation_dims(("cubeA", "cubeB"))
+    provided = provided_inputs("robomimic", dims, spec().obs_keys)
+    assert provided["cubeA_quat"] == ((4,), "float32")
+    env = {"backend": "maniskill", "task": "stack_cube", "robot": "panda"}
+    hello = {"observations": LOW_DIM, "action_dim": 7, "meta": {"env_kwargs": env}}
+    check_hello(spec(), hello, provided, env, ())  # fits
+
+    needs = LOW_DIM | {"object": {"shape": [10], "dtype": "float32"},
+                       "frontview_image": {"shape": [84, 84, 3], "dtype": "uint8"}}  # fmt: skip
+    lacks = r"robomimic:/p: reads observations our env does not provide: object, frontview_image"
+    with pytest.raises(InputError, match=lacks + r" \(frontview_image: images of cameras it "
+                       r"lacks; it has agentview, eye_in_hand\)"):  # fmt: skip
+        check_hello(spec(), hello | {"observations": needs}, provided, env, CAMERAS)
+    wide = {"eef_pos": {"shape": [4], "dtype": "float32"}}
+    with pytest.raises(InputError, match=r"reads eef_pos \(4,\) float32 \(ours: \(3,\)"):
+        check_hello(spec(), hello | {"observations": wide}, provided, env, ())
+    with pytest.raises(InputError, match="acts with 10 numbers per step; our env takes 7"):
+        check_hello(spec(), hello | {"action_dim": 10}, provided, env, ())
+    other = {"env_kwargs": env | {"task": "lift_cube"}}
+    with pytest.raises(InputError, match="trained on data of {'task': 'lift_cube'}"):
+        check_hello(spec(), hello | {"meta": other}, provided, env, ())
+
+
+@pytest.mark.parametrize("fmt, key", [("robomimic", "{}_image"),
+                                      ("lerobot", "observation.images.{}")])  # fmt: skip
+def test_an_image_policy_gets_the_cameras_it_reads_at_its_size(fmt, key):
+    image = {"shape": [64, 48, 3], "dtype": "uint8"}
+    needs = {key.format("eye_in_hand"): image, "eef_pos": LOW_DIM["eef_pos"]}
+    hello = {"observations": needs, "action_dim": 7, "meta": {}}
+    cameras, size = policy_cameras(spec(fmt), hello, CAMERAS)
+    assert (cameras, size) == (("eye_in_hand",), (64, 48))
+    dims = observation_dims(("cubeA", "cubeB"))
+    provided = provided_inputs(fmt, dims, spec().obs_keys, cameras, size)
+    assert provided[key.format("eye_in_hand")] == ((64, 48, 3), "uint8")
+    assert key.format("agentview") not in provided
+    if fmt == "robomimic":
+        check_hello(spec(fmt), hello, provided, {}, CAMERAS)
+    other = {"shape": [84, 84, 3], "dtype": "uint8"}
+    two = hello | {"observations": needs | {key.format("agentview"): other}}
+    with pytest.raises(InputError, match="reads images of several sizes"):
+        policy_cameras(spec(fmt), two, CAMERAS)
+    assert policy_cameras(spec(fmt), {"observations": LOW_DIM}, CAMERAS) == ((), None)
+
+
+def test_lerobot_inputs_are_the_export_s_frames(tmp_path):
+    """A policy trained on our LeRobot export is given, at each step, the very features the
+    export wrote for that step's observation."""
+    import pyarrow.parquet as pq
+
+    from mimicgen_pipe import exporters
+    from tests.test_export import export_info, synthetic_store
+
+    store = synthetic_store(tmp_path / "g.zarr")
+    info = export_info(store)
+    path, _ = exporters.write(store, "lerobot", tmp_path, info)
+    table = pq.read_table(path / "data/chunk-000/file-000.parquet").to_pydict()
+    fmt = external.format_module("lerobot")
+    obs_keys = tuple(info.obs_keys)
+    for t in (0, 5, 20):
+        obs = {k: store.data[f"obs/{k}"][t] for k in obs_keys}
+        inputs = fmt.observation(obs, obs_keys)
+        assert inputs.keys() == {"observation.state", "observation.environment_state"}
+        for feature, x in inputs.items():
+            assert x.dtype == np.float32
+            np.testing.assert_array_equal(x, np.array(table[feature][t], np.float32))
+
+
+def test_a_policy_of_an_unknown_kind_is_refused_saying_what_was_expected(tmp_path):
+    (tmp_path / "notes.txt").write_text("hello")
+    (tmp_path / "empty").mkdir()
+    expected = "expected lerobot:<LeRobot policy directory: .*>; robomimic:<robomimic checkpoint"
+    for text, why in [
+        ("nosuch:x", "policy format 'nosuch': unknown"),
+        (str(tmp_path / "notes.txt"), "expected <format>:<path>"),
+        (f"robomimic:{tmp_path / 'notes.txt'}", "not a checkpoint torch saved.*" + expected),
+        (f"robomimic:{tmp_path / 'none.pth'}", "no such file"),
+        (f"lerobot:{tmp_path / 'empty'}", "no config.json and no model.safetensors"),
+        (f"lerobot:{tmp_path / 'notes.txt'}", "no such directory"),
+    ]:
+        with pytest.raises(InputError, match=why):
+            parse_policy(text)
+    (tmp_path / "params.yaml").write_text(SMALL_PARAMS)
+    res = cli("evaluate_external", "--data", "D1", "--variant", "D1", "--policy",
+              f"robomimic:{tmp_path / 'notes.txt'}", cwd=tmp_path, check=False)  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    assert "not a checkpoint torch saved" in res.stderr and "Traceback" not in res.stderr
+
+
+class FakeEnv:
+    """A task without a simulator: the gripper moves by the action's first three numbers
+    (world frame, metres), and the task succeeds once it is 1 m above its start."""
+
+    def reset(self, seed: int, variant: str) -> None:
+        self.pos = np.zeros(3)
+
+    def rebuild(self) -> None:
+        pass
+
+    def eef_pose(self) -> np.ndarray:
+        pose = np.eye(4)
+        pose[:3, 3] = self.pos
+        return pose
+
+    def gripper_state(self) -> np.ndarray:
+        return np.full(2, 0.04)
+
+    def object_poses(self) -> dict[str, np.ndarray]:
+        return {}
+
+    def step(self, action: np.ndarray) -> None:
+        self.pos = self.pos + np.asarray(action[:3], float)
+
+    def is_success(self) -> bool:
+        return bool(self.pos[2] > 1.0)
+
+
+def load_stand_in(command: list[str], name: str) -> ExternalPolicy:
+    return ExternalPolicy(command, dict, name)
+
+
+def test_the_evaluator_rolls_out_a_served_policy_one_server_per_worker(tmp_path):
+    """25 episodes in three blocks, on one worker and on two: one server per worker for all
+    its blocks (a worker may run them all), gone once the evaluation ends; each episode ends
+    on success or at the horizon, the same per seed on any number of workers (the stand-in
+    climbs by the sum of eef_pos, which its seeded noise starts up or down)."""
+    import functools
+
+    seeds = list(range(100, 125))
+    runs = {}
+    for workers in (1, 2):
+        log = tmp_path / f"servers{workers}.log"
+        command = stand_in(tmp_path, observations={"eef_pos": LOW_DIM["eef_pos"]}, log=str(log))
+        job = EvalJob(
+            make_env=FakeEnv,
+            load_policy=functools.partial(load_stand_in, command),
+            variant="D0",
+            horizon=30,
+            objects=(),
+        )
+        results, _ = evaluate_policies(job, ["stand_in"], seeds, Executor("local", workers), "")
+        runs[workers] = results["stand_in"]
+        pids = [int(p) for p in log.read_text().split()]
+        assert 1 <= len(pids) <= workers
+        deadline = time.monotonic() + 10
+        while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(_alive(p) for p in pids)
+    rollouts = runs[1]
+    assert runs[2] == rollouts
+    assert [r.seed for r in rollouts] == seeds
+    assert all(r.steps == 30 or (r.success and r.steps < 30) for r in rollouts)
+    assert 0 < success_rate(rollouts) < 100
+
+
+def _alive(pid: int) -> bool:
+    """A process that runs (not a zombie: its parent, a worker, may be gone unreaped)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+class Recorder:
+    """A still arm that records what it is shown, with the env's state at that moment."""
+
+    def __init__(self, env) -> None:
+        self.env, self.seen = env, []
+
+    def reset(self, seed: int) -> None:
+        self.seen = []
+
+    def act(self, obs):
+        self.seen.append((obs, self.env.get_state()))
+        return np.zeros(7, np.float32)
+
+
+@pytest.mark.sim
+def test_rollouts_show_an_image_policy_its_cameras_pictures_of_the_moment():
+    """With a renderer, every step's observation holds <camera>_image, the observe cameras'
+    picture of the env's state at that step (as the observe stage pictures a stored state),
+    beside the low-dim keys."""
+    import envs
+    from mimicgen_pipe.evaluation import evaluation_seed, rollout
+    from mimicgen_pipe.video import make_renderer
+
+    env = envs.make_env("maniskill", "stack_cube")
+    renderer = make_renderer("maniskill", "stack_cube", "panda", 40, 32, ("agentview",))
+    try:
+        policy = Recorder(env)
+        seed = evaluation_seed(0, "D1", 0)
+        rollout(env, policy, seed, "D1", 3, env.spec.objects, renderer)
+        assert len(policy.seen) == 3
+        for obs, state in policy.seen:
+            assert {"eef_pos", "cubeA_pos", "agentview_image"} <= set(obs)
+            image = obs["agentview_image"]
+            assert image.dtype == np.uint8 and image.shape == (32, 40, 3)
+            np.testing.assert_array_equal(image, renderer.images(state)["agentview"])
+        assert policy.seen[0][0]["agentview_image"].std() > 0  # a picture, not a blank
+    finally:
+        renderer.close()
+        env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.sim
+@pytest.mark.skipif(
+    not external.DEFAULT_PYTHON.exists(),
+    reason="the learners' check venv .venv-learners is missing (made by scripts/setup.sh)",
+)
+def test_robomimic_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_path):
+    """generate -> export -> robomimic's own train.py (BC-RNN, configs/robomimic/, a few
+    steps) -> evaluate_external: the metrics of our evaluation, the policy's identity, the
+    scenes of our evaluation seeds, each episode run to the task's horizon or to success;
+    the policy's server acts the same after the same reset seed."""
+    from mimicgen_pipe.evaluation import evaluation_seed
+    from tests.test_learners import learner, short_robomimic_config
+
+    cli("export", "--variant", "D1", "--formats", "robomimic", "--out", str(tmp_path / "x"),
+        cwd=pipeline)  # fmt: skip
+    config_path = short_robomimic_config("bc_rnn_low_dim", tmp_path / "runs", 1, 5)
+    config = json.loads(config_path.read_text())
+    config["experiment"]["validate"] = False  # 4 demos: too few for a validation batch
+    config["train"]["hdf5_validation_filter_key"] = None
+    config_path.write_text(json.dumps(config))
+    res = learner("python", "-m", "robomimic.scripts.train", "--config", str(config_path),
+                  "--dataset", str(tmp_path / "x/demos.hdf5"), cwd=tmp_path)  # fmt: skip
+    assert "finished run successfully!" in res.stdout, res.stdout[-3000:] + res.stderr[-3000:]
+    (checkpoint,) = (tmp_path / "runs").glob("*/*/models/model_epoch_1.pth")
+
+    cli("evaluate_external", "--policy", f"robomimic:{checkpoint}", "--data", "D1",
+        "--variant", "D1", "--episodes", "2", "--metrics", str(tmp_path / "m.json"),
+        "--plot", str(tmp_path / "episodes.csv"), cwd=pipeline)  # fmt: skip
+    m = json.loads((tmp_path / "m.json").read_text())
+    identity = {"stage": "evaluate", "task": "stack_cube", "backend": "maniskill",
+                "variant": "D1", "robot": "panda", "data": "D1", "purpose": None}  # fmt: skip
+    assert {k: m[k] for k in identity} == identity
+    assert (m["policy_format"], m["policy"]) == ("robomimic", str(checkpoint))
+    assert m["policy_sha256"] == external.policy_digest(checkpoint)
+    assert (m["episodes"], m["seeds"], m["checkpoints"], m["horizon"]) == (2, 1, 1, 200)
+    assert m["success_rate_max"] == m["success_rate_last"] in (0.0, 50.0, 100.0)
+    rows = list(csv.DictReader((tmp_path / "episodes.csv").open()))
+    assert [int(r["seed"]) for r in rows] == [evaluation_seed(0, "D1", i) for i in range(2)]
+    assert all(r["steps"] == "200" or (r["success"] == "1" and int(r["steps"]) < 200)
+               for r in rows)  # fmt: skip
+    assert 100.0 * np.mean([r["success"] == "1" for r in rows]) == m["success_rate_max"]
+
+    spec = PolicySpec("robomimic", str(checkpoint), str(external.DEFAULT_PYTHON), (), "")
+    dims = observation_dims(("cubeA", "cubeB"))
+    obs = {k: np.full(d, 0.1, np.float32) for k, d in dims.items()}
+    with external.start_policy(spec) as policy:
+        assert set(policy.keys) == set(config["observation"]["modalities"]["obs"]["low_dim"])
+        runs = []
+        for _ in range(2):
+            policy.reset(7)
+            runs.append(np.stack([policy.act(obs) for _ in range(12)]))
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+@pytest.mark.slow
+@pytest.mark.sim
+@pytest.mark.skipif(
+    not external.DEFAULT_PYTHON.exists(),
+    reason="the learners' check venv .venv-learners is missing (made by scripts/setup.sh)",
+)
+def test_lerobot_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_path):
+    """generate -> LeRobot export -> lerobot-train (a tiny ACT, 4 steps) -> evaluate_external
+    on its pretrained_model directory: our evaluation's metrics and seeds, the policy read
+    the export's state and environment state, each episode run to the horizon or to
+    success."""
+    from mimicgen_pipe.evaluation import evaluation_seed
+    from tests.test_learners import learner
+
+    cli("export", "--variant", "D1", "--formats", "lerobot", "--out", str(tmp_path / "x"),
+        cwd=pipeline)  # fmt: skip
+    res = learner(
+        "lerobot-train", "--dataset.repo_id=local/stack_cube",
+        f"--dataset.root={tmp_path / 'x/lerobot'}", "--policy.type=act",
+        "--policy.push_to_hub=false", "--policy.device=cpu", "--policy.dim_model=32",
+        "--policy.dim_feedforward=64", "--policy.n_encoder_layers=1",
+        "--policy.n_decoder_layers=1", "--policy.chunk_size=10", "--policy.n_action_steps=10",
+        "--steps=4", "--batch_size=4", "--num_workers=0", "--save_freq=4", "--eval_freq=0",
+        "--wandb.enable=false", f"--output_dir={tmp_path / 'run'}", cwd=tmp_path,
+    )  # fmt: skip
+    model = tmp_path / "run/checkpoints/last/pretrained_model"
+    assert res.returncode == 0 and model.is_dir(), res.stdout[-2000:] + res.stderr[-3000:]
+
+    cli("evaluate_external", "--policy", f"lerobot:{model}", "--data", "D1", "--variant", "D1",
+        "--episodes", "2", "--metrics", str(tmp_path / "m.json"),
+        "--plot", str(tmp_path / "episodes.csv"), cwd=pipeline)  # fmt: skip
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert (m["stage"], m["variant"], m["data"], m["robot"]) == ("evaluate", "D1", "D1", "panda")
+    assert (m["policy_format"], m["policy_sha256"]) == ("lerobot", external.policy_digest(model))
+    assert (m["episodes"], m["seeds"], m["checkpoints"], m["horizon"]) == (2, 1, 1, 200)
+    rows = list(csv.DictReader((tmp_path / "episodes.csv").open()))
+    assert [int(r["seed"]) for r in rows] == [evaluation_seed(0, "D1", i) for i in range(2)]
+    assert all(r["steps"] == "200" or (r["success"] == "1" and int(r["steps"]) < 200)
+               for r in rows)  # fmt: skip
+    config = json.loads((model / "config.json").read_text())
+    assert set(config["input_features"]) == {"observation.state", "observation.environment_state"}
