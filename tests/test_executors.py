@@ -184,6 +184,7 @@ def test_local_two_workers_and_ray_write_the_same_stores(work):
 
 
 @pytest.mark.sim
+@pytest.mark.slow  # about 1 min (2 on a loaded machine); the default run keeps under 20 min
 def test_a_killed_run_resumes_from_its_finished_blocks(work):
     """SIGKILL a real generate once a block is saved; the same command again reuses the
     saved blocks, runs only the rest, and writes the uninterrupted run's stores."""

@@ -494,6 +494,7 @@ def maniskill_replay(traj, *extra):
 
 
 @pytest.mark.sim
+@pytest.mark.slow  # about 1 min (2 on a loaded machine); the default run keeps under 20 min
 def test_maniskill_export_replays_in_maniskills_own_tool(pipeline):
     """Every exported episode replays to success with ManiSkill's replay_trajectory, both the
     delta-pose file and its pd_joint_pos copy, and the pd_joint_pos copy converts with -c;
