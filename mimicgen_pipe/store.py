@@ -127,22 +127,12 @@ def write_store(
     steps: one mapping per episode, key -> (T_i, ...) arrays (4x4 poses allowed).
     episodes: key -> (N_episodes, ...) per-episode fields.
     """
-    if kind not in STORE_KINDS:
-        raise ValueError(f"store kind {kind!r}: expected one of {STORE_KINDS}")
-    with atomic_directory(path) as tmp:
-        root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
-        root.attrs.update({"schema_version": SCHEMA_VERSION, **attrs, "kind": kind})
-        lengths = np.array([len(next(iter(s.values()))) if s else 0 for s in steps], np.int64)
-        data = root.create_group("data")
-        keys = list(steps[0]) if steps else []
-        for key in keys:
-            parts = [as_stored(s[key]) for s in steps]
-            _write_array(data, key, np.concatenate(parts))
-        meta = root.create_group("meta")
-        _write_array(meta, "episode_ends", np.cumsum(lengths))
-        ep = meta.create_group("episodes")
+    lengths = np.array([len(next(iter(s.values()))) if s else 0 for s in steps], np.int64)
+    with store_writer(path, kind, np.cumsum(lengths), attrs) as writer:
+        for key in steps[0] if steps else ():
+            writer.array(key, np.concatenate([as_stored(s[key]) for s in steps]))
         for key, value in episodes.items():
-            _write_array(ep, key, as_stored(value))
+            writer.episode_field(key, value)
     return Path(path)
 
 
