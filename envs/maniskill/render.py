@@ -3,33 +3,32 @@ stage's video view and the observation cameras (envs.CAMERAS, placed by envs/_ca
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np
 
-from envs import CAMERAS
 from envs._cameras import (
     AGENTVIEW_EYE,
     AGENTVIEW_FOV,
     AGENTVIEW_TARGET,
+    VIDEO,
     WRIST_FORWARD,
     WRIST_FOV,
     WRIST_POS,
     WRIST_UP,
+    CameraRenderer,
 )
 from mimicgen_pipe import poses
 from mimicgen_pipe.errors import InputError
 
 # the render stage's view: the whole arm and the workspace, closer than ManiSkill's default
 EYE, TARGET, FOV = (0.3, 0.55, 0.65), (-0.3, 0.0, 0.1), 1.0
-VIDEO = "video"
 # SAPIEN's cheapest shader; "default" gives the same colours to within one level at 3x the
 # picture size (float32), and costs more per frame (benchmarks/observe.py)
 SHADER = "minimal"
 
 
-class Renderer:
+class Renderer(CameraRenderer):
     """Images of flat states (ManiSkillEnv.get_state() layout) of ``task`` with ``robot`` (the
     Panda only) from ``cameras``: ``video`` (the render stage's view) and those of CAMERAS,
     each (height, width, 3) uint8 RGB. A second env of the same task, built with a renderer,
@@ -47,9 +46,7 @@ class Renderer:
     ) -> None:
         if robot != "panda":  # the arm ManiSkill's own task registers
             raise InputError(f"render: robot {robot!r}: the maniskill renderer shows panda only")
-        unknown = [c for c in cameras if c not in (VIDEO, *CAMERAS)]
-        if unknown:
-            raise ValueError(f"cameras {unknown}: expected among {(VIDEO, *CAMERAS)}")
+        super().__init__(cameras)
         import gymnasium as gym
         import torch
         from mani_skill.utils import sapien_utils
@@ -58,8 +55,6 @@ class Renderer:
         from envs.maniskill.env import ManiSkillEnv
 
         self._torch = torch
-        self.cameras = tuple(cameras)
-        self.seconds = dict.fromkeys(self.cameras, 0.0)  # spent per camera, in images()
         task = load_task("maniskill", task)
         self._env = gym.make(
             ManiSkillEnv.env_id_for(task),
@@ -110,27 +105,17 @@ class Renderer:
         config.__post_init__()  # the shader pack's config
         return Camera(config, u.scene)
 
-    def images(self, state: np.ndarray) -> dict[str, np.ndarray]:
-        """Camera name -> (H, W, 3) uint8 RGB of the scene in ``state``; adds each camera's
-        seconds (its picture, and its share of setting the scene) to ``seconds``."""
-        t0 = time.perf_counter()
+    def _set_scene(self, state: np.ndarray) -> None:
         self._env.unwrapped.set_state(self._torch.as_tensor(np.asarray(state, np.float32))[None])
         self._scene.update_render(update_sensors=False, update_human_render_cameras=True)
-        share = (time.perf_counter() - t0) / len(self.cameras)
-        out = {}
-        for name, camera in self._render_cameras.items():
-            t0 = time.perf_counter()
-            camera.take_picture()
-            rgba = camera.get_picture("Color")
-            if self._float[name]:  # as ManiSkill converts the default shader's floats
-                rgba = (rgba * 255).astype(np.uint8)
-            out[name] = np.ascontiguousarray(rgba[..., :3])
-            self.seconds[name] += time.perf_counter() - t0 + share
-        return out
 
-    def frame(self, state: np.ndarray) -> np.ndarray:
-        """(H, W, 3) uint8 RGB of the scene in ``state`` from the first camera."""
-        return self.images(state)[self.cameras[0]]
+    def _picture(self, camera: str) -> np.ndarray:
+        render_camera = self._render_cameras[camera]
+        render_camera.take_picture()
+        rgba = render_camera.get_picture("Color")
+        if self._float[camera]:  # as ManiSkill converts the default shader's floats
+            rgba = (rgba * 255).astype(np.uint8)
+        return np.ascontiguousarray(rgba[..., :3])
 
     def close(self) -> None:
         self._env.close()

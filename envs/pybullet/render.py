@@ -3,29 +3,28 @@ and the observation cameras (envs/_cameras.py)."""
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np
 import pybullet as p
 
-from envs import CAMERAS
 from envs._cameras import (
     AGENTVIEW_EYE,
     AGENTVIEW_FOV,
     AGENTVIEW_TARGET,
+    VIDEO,
     WRIST_FORWARD,
     WRIST_FOV,
     WRIST_POS,
     WRIST_UP,
+    CameraRenderer,
 )
 
 EYE, TARGET, FOV_DEG = (0.45, 0.6, 0.6), (-0.15, 0.0, 0.25), 55.0  # the render stage's view
-VIDEO = "video"
 NEAR, FAR = 0.01, 5.0  # [m] clipping planes (the wrist camera sees the fingertips up close)
 
 
-class Renderer:
+class Renderer(CameraRenderer):
     """Images of flat states (PyBulletEnv.get_state() layout) of ``task`` with ``robot`` from
     ``cameras``: ``video`` (the render stage's view) and those of CAMERAS, each (height,
     width, 3) uint8 RGB. One scene, built once: a state only moves its joints and bodies,
@@ -41,11 +40,7 @@ class Renderer:
     ) -> None:
         from envs.pybullet import make_env
 
-        unknown = [c for c in cameras if c not in (VIDEO, *CAMERAS)]
-        if unknown:
-            raise ValueError(f"cameras {unknown}: expected among {(VIDEO, *CAMERAS)}")
-        self.cameras = tuple(cameras)
-        self.seconds = dict.fromkeys(self.cameras, 0.0)  # spent per camera, in images()
+        super().__init__(cameras)
         self._env = make_env(task, robot)
         self._size = (width, height)
         self._video = (
@@ -67,7 +62,7 @@ class Renderer:
         ]
         self._hand = links.index("panda_hand")  # every arm carries the Franka hand
 
-    def _pose_scene(self, state: np.ndarray) -> None:
+    def _set_scene(self, state: np.ndarray) -> None:
         """Joints and bodies where ``state`` has them (velocities play no part in a picture)."""
         env, sim = self._env, self._env._sim
         state = np.asarray(state, np.float64)
@@ -91,7 +86,7 @@ class Renderer:
             eye.tolist(), (eye + rot @ WRIST_FORWARD).tolist(), (rot @ WRIST_UP).tolist()
         )
 
-    def _picture(self, view, proj) -> np.ndarray:
+    def _camera_picture(self, view, proj) -> np.ndarray:
         w, h = self._size
         _, _, rgba, _, _ = self._env._sim.getCameraImage(
             w, h, viewMatrix=view, projectionMatrix=proj,
@@ -100,27 +95,12 @@ class Renderer:
         )  # fmt: skip
         return np.reshape(np.asarray(rgba, np.uint8), (h, w, 4))[..., :3].copy()
 
-    def images(self, state: np.ndarray) -> dict[str, np.ndarray]:
-        """Camera name -> (H, W, 3) uint8 RGB of the scene in ``state``; adds each camera's
-        seconds (its picture, and its share of setting the scene) to ``seconds``."""
-        t0 = time.perf_counter()
-        self._pose_scene(state)
-        share = (time.perf_counter() - t0) / len(self.cameras)
-        out = {}
-        for name in self.cameras:
-            t0 = time.perf_counter()
-            if name == VIDEO:
-                out[name] = self._picture(*self._video)
-            elif name == "agentview":
-                out[name] = self._picture(*self._agentview)
-            else:
-                out[name] = self._picture(self._wrist_view(), self._wrist_proj)
-            self.seconds[name] += time.perf_counter() - t0 + share
-        return out
-
-    def frame(self, state: np.ndarray) -> np.ndarray:
-        """(H, W, 3) uint8 RGB of the scene in ``state`` from the first camera."""
-        return self.images(state)[self.cameras[0]]
+    def _picture(self, camera: str) -> np.ndarray:
+        if camera == VIDEO:
+            return self._camera_picture(*self._video)
+        if camera == "agentview":
+            return self._camera_picture(*self._agentview)
+        return self._camera_picture(self._wrist_view(), self._wrist_proj)
 
     def close(self) -> None:
         self._env.close()
