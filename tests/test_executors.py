@@ -135,6 +135,22 @@ def _divide(x: int) -> float:
     return 1 / x
 
 
+def _pid_then_sleep(x: int) -> int:
+    time.sleep(0.2)
+    return os.getpid()
+
+
+def test_closing_the_iterator_early_leaves_no_worker():
+    """The local pool's promise: close its iterator and the workers are gone when that
+    returns (here the parent lives on, so nothing but the teardown can end them)."""
+    from mimicgen_pipe.executors import local
+
+    results = local.imap_unordered(_pid_then_sleep, enumerate(range(20)), 2, _noop)
+    pids = {next(results)[1] for _ in range(4)}
+    results.close()
+    assert pids and not [p for p in pids if alive(p)]
+
+
 # ---- real generation on every executor ----
 
 PARAMS = "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"

@@ -108,8 +108,8 @@ def own_lines(stderr: str) -> list[str]:
 def test_interrupt_stops_generate_with_one_line(work, sig):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) or SIGTERM (to the
     main process only, as a scheduler sends it) while two workers generate: exit 128+sig,
-    one line saying what was interrupted, no traceback or BrokenPipe from workers, workers
-    gone within 2 s, nothing at --out."""
+    one line saying what was interrupted, no traceback or BrokenPipe from workers, no worker
+    left once the stage has exited, nothing at --out."""
     out = f"data/int_{sig.name}/stack_D0.zarr"
     proc = start(work, *GENERATE, "--params", "two.yaml", "--attempts", "400", "--out", out,
                  "--metrics", f"metrics/int_{sig.name}.json")  # fmt: skip
@@ -120,12 +120,16 @@ def test_interrupt_stops_generate_with_one_line(work, sig):
         os.killpg(proc.pid, sig)
     else:
         os.kill(proc.pid, sig)
-    gone = seconds_until_gone(kids)
     _, err = proc.communicate(timeout=30)
     exit_seconds = time.monotonic() - t0
+    workers = [p for p, c in kids.items() if "spawn_main" in c]
     assert proc.returncode == 128 + sig, err[-3000:]
-    assert gone < 2.0, f"workers alive {gone:.1f} s after {sig.name}"
-    assert exit_seconds < 5.0
+    # The stage joins its workers before it exits: none may outlive it. The time bound only
+    # tells a stop from a run that went on (the 400 attempts take minutes); how fast a loaded
+    # machine tears a pool down is not this test's business.
+    assert not [p for p in workers if alive(p)], f"workers outlived the stage ({sig.name})"
+    assert exit_seconds < 15.0, f"the stage took {exit_seconds:.1f} s to stop"
+    assert seconds_until_gone(kids) < 10.0  # the resource tracker follows its parent
     assert "Traceback" not in err and "Error" not in err, err[-3000:]
     lines = own_lines(err)
     assert len(lines) == 1, lines
@@ -150,7 +154,9 @@ def test_workers_die_with_a_killed_main_process(work):
     os.kill(proc.pid, signal.SIGKILL)
     proc.communicate(timeout=30)
     gone = seconds_until_gone([p for p, c in kids.items() if "spawn_main" in c])
-    assert gone < 3.0, f"workers alive {gone:.1f} s after the main process was killed"
+    # the kernel kills them at once (PR_SET_PDEATHSIG); 10 s tells that from a worker left
+    # running its attempts
+    assert gone < 10.0, f"workers alive {gone:.1f} s after the main process was killed"
     assert not (work / "data/killed/stack_D0.zarr").exists()
 
 
