@@ -17,6 +17,8 @@ env is made) and defines
   files on every back end);
 
 - ``cameras(robot)``: the observation cameras (of CAMERAS) that ``robot`` has there;
+- optionally ``PLANNER_ROBOTS``: the arms whose envs plan transits
+  (mimicgen_pipe.generation.PlanningEnv; generate.transit: planned);
 
 and has a module ``render.py`` whose ``Renderer(task, robot, width, height, cameras)`` draws
 stored states (mimicgen_pipe.video.make_renderer, for the render and observe stages). Back
@@ -93,6 +95,24 @@ def check_obs_keys(spec: TaskSpec, keys, where: str) -> None:
 def check_robot(backend: str, robot: str) -> None:
     """InputError for an arm ``backend`` does not have, or whose URDF files are missing."""
     backend_package(backend).check_robot(robot)
+
+
+def check_transit(backend: str, robot: str, transit: str) -> None:
+    """InputError for ``transit`` "planned" where ``robot`` on ``backend`` has no motion
+    planner (a back end's ``PLANNER_ROBOTS``: the arms it plans for; none when absent)."""
+    if transit != "planned":
+        return
+    arms = getattr(backend_package(backend), "PLANNER_ROBOTS", ())
+    if robot not in arms:
+        where = (
+            f"backend {backend} plans for {', '.join(arms)}"
+            if arms
+            else f"backend {backend} has no motion planner"
+        )
+        raise InputError(
+            f"generate.transit: planned: no motion planner for robot {robot!r} ({where}); "
+            "use transit: linear"
+        )
 
 
 def check_cameras(backend: str, robot: str, cameras, where: str) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, cast
 
 import numpy as np
 
@@ -16,6 +16,7 @@ from mimicgen_pipe.pose_noise import PoseNoise, generation_rng, perturb_pose
 from mimicgen_pipe.registry import load
 from mimicgen_pipe.segments import segment_bounds
 from mimicgen_pipe.taskspec import TaskSpec
+from mimicgen_pipe.transit import PlannerSettings, approach_start
 
 
 class Env(Protocol):
@@ -66,6 +67,17 @@ class Env(Protocol):
         """(K,) bool: whether the arm has an IK solution for each TCP target (K, 4, 4)."""
 
     def close(self) -> None: ...
+
+
+class PlanningEnv(Env, Protocol):
+    """An env whose back end has a motion planner (generate.transit: planned)."""
+
+    def plan_transit(
+        self, target: np.ndarray, settings: PlannerSettings, rng: np.random.Generator
+    ) -> tuple[np.ndarray | None, str]:
+        """TCP targets (K, 4, 4), world, one per control step, along a collision-free path
+        from the TCP's pose now to ``target``, drawing from ``rng``; or None and why there is
+        none."""
 
 
 def transform_segment(
@@ -135,7 +147,8 @@ def add_action_noise(actions: np.ndarray, sigma: float, rng: np.random.Generator
 class GenerationConfig:
     """The method's knobs (paper M.6 defaults). selection: a selection strategy, the name of a
     module of mimicgen_pipe.selection. pose_noise: the pose-estimation error on the reference
-    object's pose observed at the start of each subtask (paper T)."""
+    object's pose observed at the start of each subtask (paper T). transit: "linear" (paper
+    M.2) or "planned" (mimicgen_pipe.transit, with ``planner``'s settings)."""
 
     action_noise: float = 0.05
     n_interp: int = 5
@@ -144,6 +157,8 @@ class GenerationConfig:
     nn_k: int = 3
     per_subtask: bool = False
     pose_noise: PoseNoise = PoseNoise()
+    transit: str = "linear"
+    planner: PlannerSettings = PlannerSettings()
 
 
 @dataclass(frozen=True)
@@ -183,6 +198,7 @@ class Attempt:
     source_demo: np.ndarray  # (M,) source demo followed in each subtask
     initial_state: np.ndarray
     initial_object_poses: np.ndarray  # (n_objects, 4, 4) world
+    planner_failed: bool = False  # stopped before failed_subtask: no planned transit found
 
 
 def run_attempt(
@@ -197,7 +213,9 @@ def run_attempt(
     source demo, transform its segment to the reference object's current pose, prepend the
     interpolation from the current end-effector pose, and execute it as noisy delta-pose
     actions. Success is the task's success after the last step. An attempt whose next targets
-    the arm cannot reach (env.reachable) stops there, as an IK failure of that subtask."""
+    the arm cannot reach (env.reachable) stops there, as an IK failure of that subtask; with
+    planned transit, one whose transit the planner cannot find stops there too, as a
+    planner failure of that subtask."""
     rng = np.random.default_rng(seed)
     pose_rng = generation_rng(seed)
     env.reset(seed=seed, variant=variant)
@@ -220,7 +238,7 @@ def run_attempt(
     chosen = np.full(len(spec.subtasks), -1, dtype=np.int64)
     reached = np.zeros(len(spec.subtasks), dtype=bool)
     demo = -1
-    ik_failed = False
+    ik_failed = planner_failed = False
     for i, sub in enumerate(spec.subtasks):
         # the reference object's pose as a pose estimator reports it (paper T); the simulator's
         # true poses are untouched, and they are what gets recorded
@@ -235,7 +253,16 @@ def run_attempt(
             sources.target_poses[s:e], sources.object_poses[sub.reference_object][s], ref_now
         )
         grip = sources.gripper[s:e]
-        interp = interpolation(env.eef_pose(), seg[0], config.n_interp, config.n_fixed)
+        if config.transit == "planned":
+            k = approach_start(seg, ref_now, config.planner.approach_distance)
+            seg, grip = seg[k:], grip[k:]
+            path, _ = cast(PlanningEnv, env).plan_transit(seg[0], config.planner, rng)
+            if path is None:
+                planner_failed = True
+                break
+            interp = np.concatenate([path, np.repeat(seg[:1], config.n_fixed, axis=0)])
+        else:
+            interp = interpolation(env.eef_pose(), seg[0], config.n_interp, config.n_fixed)
         targets = np.concatenate([interp, seg])
         grips = np.concatenate([np.full(len(interp), grip[0]), grip])
         if not env.reachable(targets).all():
@@ -253,12 +280,20 @@ def run_attempt(
             obj_now = env.object_poses()
         if sub.term_signal is not None and env.subtask_signals()[sub.term_signal]:
             reached[i] = True
-    success = not ik_failed and bool(env.is_success())
+    success = not (ik_failed or planner_failed) and bool(env.is_success())
     reached[-1] = success
     failed = -1 if success else int(np.argmin(reached))
     steps = recorder.arrays()
     return Attempt(
-        seed, steps, success, failed, ik_failed, chosen, initial_state, initial_object_poses
+        seed,
+        steps,
+        success,
+        failed,
+        ik_failed,
+        chosen,
+        initial_state,
+        initial_object_poses,
+        planner_failed,
     )
 
 

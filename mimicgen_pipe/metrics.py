@@ -135,12 +135,15 @@ def generation_metrics(
     seconds: np.ndarray,
     subtasks: list[str],
     ik_failed: np.ndarray | None = None,
+    planner_failed: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """attempts, successes, dgr (data generation rate, %), seconds per attempt (mean, median),
     task failures per subtask (the first subtask an attempt did not achieve) and, apart from
     them, IK failures (attempts stopped because the arm cannot reach a subtask's targets),
-    in total and per subtask."""
+    in total and per subtask; with ``planner_failed`` (planned transit), planner failures
+    (attempts stopped because no transit to a subtask's segment was found) apart too."""
     ik = np.zeros(len(success), bool) if ik_failed is None else np.asarray(ik_failed, bool)
+    plan = np.zeros(len(success), bool) if planner_failed is None else np.asarray(planner_failed)
     n = len(success)
     out: dict[str, Any] = {
         "attempts": int(n),
@@ -151,8 +154,12 @@ def generation_metrics(
     }
     out["ik_failures"] = int(ik.sum())
     for i, name in enumerate(subtasks):
-        out[f"failures_{name}"] = int(np.sum((failed_subtask == i) & ~ik))
+        out[f"failures_{name}"] = int(np.sum((failed_subtask == i) & ~ik & ~plan))
         out[f"ik_failures_{name}"] = int(np.sum((failed_subtask == i) & ik))
+    if planner_failed is not None:
+        out["planner_failures"] = int(plan.sum())
+        for i, name in enumerate(subtasks):
+            out[f"planner_failures_{name}"] = int(np.sum((failed_subtask == i) & plan))
     return out
 
 

@@ -35,13 +35,28 @@ class SourceParams:
 
 
 @dataclass(frozen=True)
+class PlannerParams:
+    """The motion planner of planned transit (generate.transit: planned; the fields of
+    mimicgen_pipe.transit.PlannerSettings, with their units)."""
+
+    approach_distance: float = 0.1
+    clearance: float = 0.02
+    max_joint_step: float = 0.02
+    max_iterations: int = 2000
+    shortcuts: int = 50
+    ik_tries: int = 20
+
+
+@dataclass(frozen=True)
 class GenerateParams:
     """Generation knobs (paper M.6 defaults). mode "guarantee" runs until num_demos
     successes (failing loudly after max_attempts); "fixed_attempts" runs exactly
     max_attempts attempts. selection: a selection strategy of mimicgen_pipe.selection.
     executor: where attempts run, an executor of mimicgen_pipe.executors: ``local`` (a pool
     of ``workers`` simulator processes here) or ``ray`` (Ray tasks; see RayParams). Neither
-    workers nor executor changes the data."""
+    workers nor executor changes the data. transit: how the arm reaches each segment:
+    "linear" interpolation (paper M.2) or a "planned" collision-free path (ManiSkill only;
+    mimicgen_pipe.transit), with the planner's knobs in ``planner``."""
 
     variants: list[str] = field(default_factory=lambda: ["D0", "D1"])
     num_demos: int = 1000
@@ -57,6 +72,8 @@ class GenerateParams:
     workers: int = 2
     executor: str = "local"
     robot: str = "panda"
+    transit: Literal["linear", "planned"] = "linear"
+    planner: PlannerParams = field(default_factory=PlannerParams)
 
 
 @dataclass(frozen=True)
@@ -256,6 +273,12 @@ _RANGES: dict[str, tuple[float, float]] = {
     "generate.n_fixed": (0, 1000),
     "generate.nn_k": (1, 10_000),
     "generate.workers": (1, 256),
+    "generate.planner.approach_distance": (0.0, 1.0),
+    "generate.planner.clearance": (0.0, 0.2),
+    "generate.planner.max_joint_step": (0.001, 0.5),
+    "generate.planner.max_iterations": (1, 1_000_000),
+    "generate.planner.shortcuts": (0, 100_000),
+    "generate.planner.ik_tries": (1, 1000),
     "coverage.bins": (1, 100),
     "source.seed": (0, 2**29),  # reset seeds from 2**30 on are evaluation's
     # the other seeds only seed numpy / torch generators and SeedSequences (generation and
@@ -520,7 +543,9 @@ def data_params(params: Params, stage: Literal["source", "generate", "observe"])
     """The params that shape a stage's output store, as recorded in its attrs: exactly the
     keys dvc.yaml declares for the stage (so the same declared params give the same bytes).
     source: task, backend, source. generate: generate without worker counts and the variant
-    list (and without num_demos in fixed_attempts mode, where it is unused), pose_noise.
+    list (without num_demos in fixed_attempts mode, where it is unused; without transit and
+    planner for linear transit, so that stores from before planned transit keep their
+    bytes), pose_noise.
     observe: observe without its worker count."""
     if stage == "source":
         return {"task": params.task, "backend": params.backend, "source": as_dict(params.source)}
@@ -530,6 +555,8 @@ def data_params(params: Params, stage: Literal["source", "generate", "observe"])
             del o[key]
         return {"observe": o}
     g = as_dict(params.generate)
-    for key in _NOT_DATA["generate"] + (("num_demos",) if g["mode"] == "fixed_attempts" else ()):
+    unused = ("num_demos",) if g["mode"] == "fixed_attempts" else ()
+    unused += ("transit", "planner") if g["transit"] == "linear" else ()
+    for key in _NOT_DATA["generate"] + unused:
         del g[key]
     return {"generate": g, "pose_noise": as_dict(params.pose_noise)}

@@ -39,6 +39,7 @@ from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
 from mimicgen_pipe.store import EpisodeStore, read_store, write_store
 from mimicgen_pipe.taskspec import TaskSpec
+from mimicgen_pipe.transit import PlannerSettings
 
 
 def attempt_seed(seed: int, variant: str, attempt: int) -> int:
@@ -145,7 +146,15 @@ def attempt_job(
     check_store_noise(store.attrs, pose_noise, params.pose_noise.seed, parsed)
     g = params.generate
     config = GenerationConfig(
-        g.action_noise, g.n_interp, g.n_fixed, g.selection, g.nn_k, g.per_subtask, pose_noise
+        g.action_noise,
+        g.n_interp,
+        g.n_fixed,
+        g.selection,
+        g.nn_k,
+        g.per_subtask,
+        pose_noise,
+        g.transit,
+        PlannerSettings(**dataclasses.asdict(g.planner)),
     )
     return AttemptJob(make_env, source_demos(store, spec.objects), spec, config, variant), store
 
@@ -247,6 +256,7 @@ class AttemptBlockCodec:
         "success": (np.bool_, bool),
         "failed_subtask": (np.int64, int),
         "ik_failed": (np.bool_, bool),
+        "planner_failed": (np.bool_, bool),
     }
     ARRAYS = ("source_demo", "initial_state", "initial_object_poses")  # per attempt, as is
 
@@ -259,7 +269,14 @@ class AttemptBlockCodec:
         for k, (seed, attempt, seconds) in enumerate(result):
             if attempt.seed != seed:
                 raise ValueError(f"attempt {k} of block {index}: seed {attempt.seed} != {seed}")
-            row = (seed, seconds, attempt.success, attempt.failed_subtask, attempt.ik_failed)
+            row = (
+                seed,
+                seconds,
+                attempt.success,
+                attempt.failed_subtask,
+                attempt.ik_failed,
+                attempt.planner_failed,
+            )
             for name, value in zip(self.SCALARS, row, strict=True):
                 columns[name].append(value)
             for name in self.ARRAYS:
@@ -296,6 +313,7 @@ class AttemptBlockCodec:
                 success=scalars["success"],
                 failed_subtask=scalars["failed_subtask"],
                 ik_failed=scalars["ik_failed"],
+                planner_failed=scalars["planner_failed"],
                 **{name: arrays[f"{k}/{name}"] for name in self.ARRAYS},
             )
             out.append((scalars["seed"], attempt, scalars["seconds"]))
@@ -351,7 +369,8 @@ def generate(
     Interrupted on the way up says how far the run got."""
     kept: list[Attempt] = []
     failed: list[Attempt] = []
-    rows: list[tuple[bool, int, float, bool]] = []  # success, failed subtask, seconds, IK
+    # success, failed subtask, seconds, IK failure, planner failure
+    rows: list[tuple[bool, int, float, bool, bool]] = []
     bar = tqdm(
         total=len(seeds) if num_demos is None else num_demos,
         desc=label,
@@ -363,7 +382,15 @@ def generate(
     try:
         if num_demos != 0:
             for _, attempt, sec in results:
-                rows.append((attempt.success, attempt.failed_subtask, sec, attempt.ik_failed))
+                rows.append(
+                    (
+                        attempt.success,
+                        attempt.failed_subtask,
+                        sec,
+                        attempt.ik_failed,
+                        attempt.planner_failed,
+                    )
+                )
                 if len(rows) == IK_ABORT_AFTER and all(r[3] for r in rows):
                     raise RuntimeError(
                         f"generate: all of the first {IK_ABORT_AFTER} attempts failed at IK "
@@ -400,6 +427,7 @@ def generate(
         np.array([r[2] for r in rows]),
         [s.name for s in job.spec.subtasks],
         np.array([r[3] for r in rows], bool),
+        np.array([r[4] for r in rows], bool) if job.config.transit == "planned" else None,
     )
     # an attempt stopped at IK before its first step has no steps to keep; it is counted in
     # the metrics only
@@ -445,16 +473,20 @@ def write_generated(
     kept: Path, failed: Path, result: GenerationResult, spec: TaskSpec, attrs: Mapping[str, Any]
 ) -> None:
     """The kept store at ``kept`` and the failed store at ``failed`` of a generate run."""
+    planned = "planner_failures" in result.metrics
     for attempts, path, kind in (
         (result.kept, kept, "generated"),
         (result.failed, failed, "failed"),
     ):
         steps = [a.steps for a in attempts]
-        write_store(path, kind, steps, episode_fields(attempts, spec), attrs)
+        write_store(path, kind, steps, episode_fields(attempts, spec, planned), attrs)
 
 
-def episode_fields(attempts: list[Attempt], spec: TaskSpec) -> dict[str, np.ndarray]:
-    """meta/episodes of a generated (or failed) store, shaped also when it has none."""
+def episode_fields(
+    attempts: list[Attempt], spec: TaskSpec, planned: bool = False
+) -> dict[str, np.ndarray]:
+    """meta/episodes of a generated (or failed) store, shaped also when it has none; with
+    ``planned`` (planned transit), each episode's planner failure too."""
     n = len(attempts)
     return {
         "seed": np.asarray([a.seed for a in attempts], np.int64),
@@ -468,7 +500,8 @@ def episode_fields(attempts: list[Attempt], spec: TaskSpec) -> dict[str, np.ndar
         "initial_state": np.asarray([a.initial_state for a in attempts], np.float32),
         "failure_reason": np.asarray([a.failed_subtask for a in attempts], np.int64),
         "ik_failure": np.asarray([a.ik_failed for a in attempts], bool),
-    }
+    } | ({"planner_failure": np.asarray([a.planner_failed for a in attempts], bool)}
+         if planned else {})  # fmt: skip
 
 
 WORKSPACE_SCENES = 8  # scenes sampled to check that the arm can reach the workspace

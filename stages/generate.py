@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> None:
         print(f"generate: {note}")
     g = params.generate
     envs.check_robot(params.backend, g.robot)
+    envs.check_transit(params.backend, g.robot, g.transit)
     executor = stage_executor(params, "generate")  # refuses unsafe Ray settings before any work
     parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
     out = Path(args.out or layout.generated_store(params.task, args.variant))

@@ -11,6 +11,7 @@ from mimicgen_pipe.registry import choices, load
 
 # the Panda (envs/maniskill/env.py) and the xArm6 with the Franka hand (envs/maniskill/xarm6.py)
 ROBOTS = (*PANDA_ROBOTS, "xarm6")
+PLANNER_ROBOTS = ("panda",)  # envs/maniskill/planner.py plans with the Panda's URDF
 
 
 def check_robot(robot: str) -> None:

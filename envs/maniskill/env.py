@@ -13,7 +13,9 @@ from mani_skill.utils.registration import REGISTERED_ENVS, register_env  # noqa:
 from mani_skill.utils.structs.pose import Pose  # noqa: E402
 
 from envs import load_task  # noqa: E402
+from envs.maniskill import lean  # noqa: E402
 from envs.maniskill.lean import LeanStep  # noqa: E402
+from envs.maniskill.planner import TransitPlanner  # noqa: E402
 from envs.maniskill.tasks import ROBOTS, ManiSkillTask  # noqa: E402
 from mimicgen_pipe import poses  # noqa: E402
 from mimicgen_pipe.controller import (  # noqa: E402
@@ -24,6 +26,7 @@ from mimicgen_pipe.controller import (  # noqa: E402
 from mimicgen_pipe.errors import InputError  # noqa: E402
 from mimicgen_pipe.reset_variants import sample_planar_poses  # noqa: E402
 from mimicgen_pipe.taskspec import ResetVariant  # noqa: E402
+from mimicgen_pipe.transit import PlannerSettings  # noqa: E402
 
 
 def draw_planar(
@@ -72,6 +75,11 @@ class VariantResets:
         options = dict(options or {})
         self.variant = options.pop("variant", self.variant)
         return super().reset(seed=seed, options=options)
+
+    def _load_scene(self, options: dict):
+        super()._load_scene(options)
+        if self.task.load_scene is not None:
+            self.task.load_scene(self)
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         variants = self.task.spec.reset_variants
@@ -250,6 +258,7 @@ class ManiSkillEnv:
             robot.active_joints.index(j) for j in robot.active_joints if "finger" in j.name
         ]
         self._lean = LeanStep(u) if self.lean_step else None
+        self._planner: TransitPlanner | None = None  # built when first asked, per scene
 
     def step(self, action: np.ndarray) -> None:
         if self._lean:
@@ -324,6 +333,27 @@ class ManiSkillEnv:
         """All True: ManiSkill's controller solves its own IK each step, and a target it
         cannot reach leaves the arm where it is, which shows up as a task failure."""
         return np.ones(len(targets), bool)
+
+    def plan_transit(
+        self, target: np.ndarray, settings: PlannerSettings, rng: np.random.Generator
+    ) -> tuple[np.ndarray | None, str]:
+        """TCP targets (K, 4, 4), world, one per control step, along a collision-free path
+        from the TCP's pose now to ``target`` among the scene's actors as they are now, a
+        grasped task object carried along (envs/maniskill/planner.py); or None and why
+        there is none."""
+        if self._planner is None:
+            self._planner = TransitPlanner(self._u)
+        actor = {o: getattr(self._u, a) for o, a in self.task.objects.items()}
+        objects = {a.name: a for a in actor.values()}
+        held = {name: a for name, a in objects.items() if lean.is_grasping(self._u, a)}
+        # the arm works on the table and on the objects subtasks refer to: the planner keeps
+        # its clearance from everything else
+        worked = {n for n in self._u.scene.actors if n.startswith("table")}
+        worked |= {actor[s.reference_object].name for s in self.spec.subtasks}
+        # the task's objects too: an actor merged across parallel scenes (PegInsertionSide's
+        # peg) is not among the scene's actors
+        self._planner.sync(self._u.scene.actors | objects, held, worked, settings.clearance)
+        return self._planner.plan(target, settings, rng)
 
     def close(self) -> None:
         self._env.close()

@@ -56,6 +56,9 @@ class ManiSkillTask:
     variant_scene_seeds: variant -> the seed its scene is built with instead, for a task
         whose geometry comes from that seed: object transfer (paper F, O1), another object
         under the same source demos.
+    load_scene: env -> None: add the task's own actors (e.g. an obstacle) to the scene
+        ManiSkill's env builds, each held as an attribute of the env; the task's env then
+        has an id of its own (``env_id``).
     restore: env -> None: after a stored state is restored, recompute what the task derives
         from object poses at reset and keeps outside the simulator's state (e.g.
         PlugCharger's goal pose, which its success test reads).
@@ -83,6 +86,7 @@ class ManiSkillTask:
     variant_scene_seeds: dict[str, int] = field(default_factory=dict)
     frames: dict[str, Callable[[Any], Any]] = field(default_factory=dict)
     restore: Callable[[Any], None] | None = None
+    load_scene: Callable[[Any], None] | None = None
 
     def __post_init__(self) -> None:
         if self.frames and self.rebuild_seed != CREATION_SEED:
@@ -93,4 +97,6 @@ class ManiSkillTask:
 
     @property
     def env_id(self) -> str:
+        if self.load_scene is not None:  # another scene than the base env's
+            return f"MimicGen{self.spec.name}-{self.base_env_id}"
         return f"MimicGen{self.base_env_id}"
