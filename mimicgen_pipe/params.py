@@ -225,6 +225,18 @@ class TransferParams:
 
 
 @dataclass(frozen=True)
+class PlannedTransitParams:
+    """The transit pipeline (transit/dvc.yaml): ``attempts`` fixed attempts with linear and
+    with planned transit, on the D0 of each task of ``tasks`` and on stack_cube_wall's
+    variant wall."""
+
+    tasks: list[str] = field(
+        default_factory=lambda: ["stack_cube_wall", "pull_cube_tool", "place_sphere"]
+    )
+    attempts: int = 200
+
+
+@dataclass(frozen=True)
 class SuiteParams:
     """The task suite (suite/dvc.yaml): every task x variant generated from its own source
     demos, ``attempts`` fixed attempts each, on ``backend``, with action noise
@@ -257,6 +269,7 @@ class Params:
     evaluate: EvaluateParams = field(default_factory=EvaluateParams)
     transfer: TransferParams = field(default_factory=TransferParams)
     suite: SuiteParams = field(default_factory=SuiteParams)
+    planned_transit: PlannedTransitParams = field(default_factory=PlannedTransitParams)
     export: ExportParams = field(default_factory=ExportParams)
     render: RenderParams = field(default_factory=RenderParams)
     observe: ObserveParams = field(default_factory=ObserveParams)
@@ -313,6 +326,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "observe.workers": (1, 256),
     "transfer.attempts": (1, 10_000_000),
     "suite.attempts": (1, 10_000_000),
+    "planned_transit.attempts": (1, 10_000_000),
     "suite.action_noise": (0.0, 1.0),
 }
 
@@ -393,6 +407,7 @@ _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "transfer.variants": _non_empty_unique,
     "transfer.robots": _non_empty_unique,
     "suite.tasks": _non_empty_unique,
+    "planned_transit.tasks": _non_empty_unique,
     "suite.variants": _non_empty_unique,
 }
 

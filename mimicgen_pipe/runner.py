@@ -90,12 +90,15 @@ class AttemptJob:
 
 
 def with_generate_options(
-    params: Params, attempts: int | None, action_noise: float | None
+    params: Params,
+    attempts: int | None,
+    action_noise: float | None,
+    transit: str | None = None,
 ) -> Params:
     """``params`` with the generate stage's options in place of the keys they stand for:
     ``attempts``, exactly that many attempts (generate.mode fixed_attempts, max_attempts);
-    ``action_noise``, generate.action_noise. Each is held to its key's range: InputError
-    naming the option otherwise."""
+    ``action_noise``, generate.action_noise; ``transit``, generate.transit. Each is held to
+    its key's range: InputError naming the option otherwise."""
     g = params.generate
     for flag, key, value in (
         ("--attempts", "generate.max_attempts", attempts),
@@ -108,6 +111,8 @@ def with_generate_options(
         g = dataclasses.replace(g, mode="fixed_attempts", max_attempts=attempts)
     if action_noise is not None:
         g = dataclasses.replace(g, action_noise=action_noise)
+    if transit is not None:
+        g = dataclasses.replace(g, transit=transit)
     return dataclasses.replace(params, generate=g)
 
 

@@ -30,7 +30,7 @@ import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("mimicgen_pipe", "envs", "stages")
-PIPELINES = ("dvc.yaml", "suite/dvc.yaml", "quickstart/dvc.yaml")
+PIPELINES = ("dvc.yaml", "suite/dvc.yaml", "quickstart/dvc.yaml", "transit/dvc.yaml")
 CODE_DEP = re.compile(r"^(mimicgen_pipe|envs|stages)/[^$]*\.py$")
 
 

@@ -23,6 +23,7 @@ from mimicgen_pipe.runner import (
     with_generate_options,
     write_generated,
 )
+from mimicgen_pipe.transit import TRANSITS
 from stages import add_selection_arguments, stage_params
 
 
@@ -52,11 +53,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         help="sigma of the action noise, in place of generate.action_noise (the suite's own)",
     )
+    p.add_argument(
+        "--transit",
+        choices=TRANSITS,
+        help="linear or planned transit, in place of generate.transit",
+    )
 
 
 def run(args: argparse.Namespace) -> None:
     # the options stand in for params keys, and are held to the same ranges
-    params = with_generate_options(stage_params(args), args.attempts, args.action_noise)
+    params = with_generate_options(
+        stage_params(args), args.attempts, args.action_noise, args.transit
+    )
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
     params, note = capped_action_noise(params, spec)

@@ -1,7 +1,8 @@
 """report: report.md and report.html from the metrics present, beside the paper's numbers:
 the default pipeline's (metrics/, plots/, media/ -> report/, with summary.json, its headline
 numbers, and the figures of its policies over training) or, with --suite, the task suite's
-(suite/metrics/ -> suite/report/)."""
+(suite/metrics/ -> suite/report/) or, with --transit, linear vs planned transit's
+(transit/metrics/ -> transit/report/)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,10 @@ from pathlib import Path
 
 import envs
 from mimicgen_pipe import layout
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import atomic_directory, claim, directory_kind
-from mimicgen_pipe.report import build_report, build_suite_report
+from mimicgen_pipe.report import build_report, build_suite_report, build_transit_report
 from mimicgen_pipe.report.blocks import render_html, render_markdown
 from mimicgen_pipe.report.curves import FIGURES, draw_curves, read_curves
 from mimicgen_pipe.report.inputs import (
@@ -34,6 +36,7 @@ REPORT_DIR = directory_kind(
     "report directory", "|".join(map(re.escape, REPORT_FILES)) + r"|coverage_[^/]+\.png"
 )
 SUITE = Path("suite")  # the task suite's metrics/ and report/ (suite/dvc.yaml)
+TRANSIT = Path("transit")  # linear vs planned transit's (transit/dvc.yaml)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,7 +47,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the task suite's report (params suite.*: DGR, object transfer, policies, "
         "ablations) instead of the default pipeline's",
     )
-    p.add_argument("--metrics", help="metrics folder (default: metrics, or suite/metrics)")
+    p.add_argument(
+        "--transit",
+        action="store_true",
+        help="linear vs planned transit's report (params planned_transit.*) instead",
+    )
+    p.add_argument(
+        "--metrics", help="metrics folder (default: metrics, suite/metrics or transit/metrics)"
+    )
     p.add_argument(
         "--ablations",
         help="saved ablation runs, one folder each with params.yaml and metrics JSON files "
@@ -61,15 +71,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="reference/paper_results.yaml",
         help="the paper's numbers (default: reference/paper_results.yaml)",
     )
-    p.add_argument("--out", help="report folder (default: report, or suite/report)")
+    p.add_argument("--out", help="report folder (default: report, suite/report or transit/report)")
 
 
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
-    suite = args.suite
-    metrics_dir = Path(args.metrics or (SUITE / "metrics" if suite else "metrics"))
+    suite, transit = args.suite, args.transit
+    if suite and transit:
+        raise InputError("--suite and --transit: one report at a time")
+    home = SUITE if suite else TRANSIT if transit else None  # None: the default pipeline's
+    metrics_dir = Path(args.metrics or (home / "metrics" if home else "metrics"))
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
-    out = Path(args.out or (SUITE / "report" if suite else layout.report_dir()))
+    out = Path(args.out or (home / "report" if home else layout.report_dir()))
     # fails at once if another run writes the report, or if out holds anything else
     claim((out, REPORT_DIR), inputs=[metrics_dir, args.plots])
     paper = load_paper_results(args.paper)
@@ -77,7 +90,10 @@ def run(args: argparse.Namespace) -> None:
     images: dict[str, bytes] = {}  # image path in the report -> PNG bytes embedded in the HTML
     figures: dict[str, bytes] = {}  # figure file written beside the report -> PNG bytes
     summary: dict[str, float] | None = None  # the default pipeline's headline numbers
-    if suite:
+    if transit:
+        blocks = build_transit_report(params, ms)
+        title, runs = "Linear vs planned transit", 0
+    elif suite:
         u = params.suite
         specs = [envs.task_spec(u.backend, task) for task in u.tasks]
         ablations = {task: read_runs(ablations_dir / task) for task in u.tasks}

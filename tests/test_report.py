@@ -16,7 +16,7 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import Metrics, metrics_identity, read_metrics, write_metrics
 from mimicgen_pipe.outputs import claims
 from mimicgen_pipe.params import Params
-from mimicgen_pipe.report import build_report, build_suite_report
+from mimicgen_pipe.report import build_report, build_suite_report, build_transit_report
 from mimicgen_pipe.report.ablations import suite_ablation_blocks
 from mimicgen_pipe.report.blocks import Heading, Image, Table, Text, render_html, render_markdown
 from mimicgen_pipe.report.curves import draw_curves, read_curves
@@ -305,7 +305,8 @@ def run_report(tmp_path: Path, metrics: Path, plots: Path, out: Path) -> None:
 
     (tmp_path / "params.yaml").write_text("task: stack_cube\ngenerate: {variants: [D0, D1]}\n")
     args = dict(params=str(tmp_path / "params.yaml"), metrics=str(metrics), ablations=None,
-                plots=str(plots), paper=str(PAPER), out=str(out), suite=False)  # fmt: skip
+                plots=str(plots), paper=str(PAPER), out=str(out), suite=False,
+                transit=False)  # fmt: skip
     with claims():
         report.run(argparse.Namespace(**args))
 
@@ -565,3 +566,31 @@ def test_suite_ablations_compare_with_their_own_default_run():
     lone = suite_ablation_blocks("pull_cube_tool", "Hammer Cleanup", runs[1:], paper)
     assert isinstance(lone[-1], Text)
     assert "missing" in lone[-1].text and "action_noise_0, pose_noise_L2" in lone[-1].text
+
+
+def test_the_transit_report_sets_each_cells_linear_and_planned_runs_side_by_side():
+    def run(task, variant, dgr, planned, **extra):
+        fields = dict(purpose="dgr", steps=40000, seconds_per_attempt_mean=0.5) | extra
+        if planned:
+            fields |= {"planner_failures": 3}
+        return gen(task, variant, dgr, **fields)
+
+    files = [
+        run("stack_cube_wall", "wall", 4.5, False),
+        run("stack_cube_wall", "wall", 60.0, True, seconds_per_attempt_mean=1.25),
+        run("stack_cube_wall", "D0", 95.0, False),
+        run("pull_cube_tool", "D0", 80.0, True),  # its linear run is absent
+    ]
+    md = render_markdown(build_transit_report(Params(), MetricsSet(tuple(files))))
+    wall = rows_of(md, "| stack_cube_wall (wall)")
+    assert wall == [
+        "| stack_cube_wall (wall) | 4.5 (9/200) | 60.0 (120/200) | +55.5 | 3 | 0.50 | 1.25 "
+        "| 200 | 200 |"
+    ]
+    assert rows_of(md, "| stack_cube_wall (D0)")[0].startswith(
+        "| stack_cube_wall (D0) | 95.0 (190/200) | missing | missing | missing |"
+    )
+    assert rows_of(md, "| pull_cube_tool (D0)")[0].startswith(
+        "| pull_cube_tool (D0) | missing | 80.0 (160/200) | missing | 3 |"
+    )
+    assert rows_of(md, "| place_sphere (D0)")[0].startswith("| place_sphere (D0) | missing |")

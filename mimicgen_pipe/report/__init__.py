@@ -6,11 +6,12 @@ the paper's numbers file (each with the table it was read from). A metric that w
 produced is written ``missing``; no row is made up. A coverage, training or evaluation of
 another generate run than the one shown beside it is marked, never mixed in silently.
 
-Two reports: :func:`build_report`, the default pipeline's (the main task, its policies over
-training, robot transfer, ablations, videos), and :func:`build_suite_report`, the task
-suite's. Each is a list of blocks (mimicgen_pipe.report.blocks) rendered as Markdown and
-HTML. The default pipeline's report comes with its figures of the policies over training
-(mimicgen_pipe.report.curves) and its headline numbers (mimicgen_pipe.report.summary).
+Three reports: :func:`build_report`, the default pipeline's (the main task, its policies
+over training, robot transfer, ablations, videos), :func:`build_suite_report`, the task
+suite's, and :func:`build_transit_report`, linear vs planned transit's. Each is a list of
+blocks (mimicgen_pipe.report.blocks) rendered as Markdown and HTML. The default pipeline's
+report comes with its figures of the policies over training (mimicgen_pipe.report.curves)
+and its headline numbers (mimicgen_pipe.report.summary).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from mimicgen_pipe.report.inputs import Media, MetricsSet, Run
 from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.report.settings import method_settings
 from mimicgen_pipe.report.transfer import transfer_blocks, transfer_table
+from mimicgen_pipe.report.transit import transit_blocks
 from mimicgen_pipe.report.videos import video_blocks
 from mimicgen_pipe.taskspec import TaskSpec
 
@@ -85,3 +87,8 @@ def build_suite_report(
         if ablations.get(spec.name):
             blocks += suite_ablation_blocks(spec.name, spec.paper_task, ablations[spec.name], paper)
     return blocks
+
+
+def build_transit_report(params: Params, ms: MetricsSet) -> list[Block]:
+    """The transit pipeline's report (params planned_transit.*): ``ms``, its metrics folder."""
+    return transit_blocks(params, ms)

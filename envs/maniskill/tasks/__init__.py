@@ -23,6 +23,32 @@ ROBOTS = ("panda",)
 CREATION_SEED = 2022  # the seed ManiSkill builds every env's scene with at creation
 
 
+def cube_on_cube_signals(env, info: dict) -> dict[str, bool]:
+    """StackCube-v1's subtask signals from its ``evaluate()`` info (cube A on cube B)."""
+    return {
+        "grasp_cubeA": bool(info["is_cubeA_grasped"]),
+        "cubeA_on_cubeB": bool(info["is_cubeA_on_cubeB"]),
+    }
+
+
+def cube_on_cube_evaluate(env) -> dict[str, bool]:
+    """StackCube-v1's signals and success read straight from SAPIEN (the lean step's)."""
+    import numpy as np
+
+    from envs.maniskill import lean
+
+    f32 = np.float32
+    offset = lean.pose(env.cubeA)[0] - lean.pose(env.cubeB)[0]
+    half = env.cube_half_size.numpy()
+    on = bool(
+        np.linalg.norm(offset[:2]) <= np.linalg.norm(half[:2]) + f32(0.005)
+        and abs(offset[2] - half[2] * 2) <= f32(0.005)
+    )
+    grasped = lean.is_grasping(env, env.cubeA)
+    static = lean.is_static(env.cubeA, lin_thresh=1e-2, ang_thresh=0.5)
+    return {"grasp_cubeA": grasped, "cubeA_on_cubeB": on, "success": on and static and not grasped}
+
+
 @dataclass(frozen=True)
 class ManiSkillTask:
     """Everything task-specific on the ManiSkill back end.

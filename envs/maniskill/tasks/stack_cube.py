@@ -13,35 +13,17 @@ Reset variants (world frame; the table centre is the origin, the Panda base is a
 
 from __future__ import annotations
 
-import numpy as np
-
-from envs.maniskill.tasks import FULL_YAW, PANDA_REACH, ManiSkillTask
+from envs.maniskill.tasks import (
+    FULL_YAW,
+    PANDA_REACH,
+    ManiSkillTask,
+    cube_on_cube_evaluate,
+    cube_on_cube_signals,
+)
 from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
 
 OBJECTS = ("cubeA", "cubeB")
 CUBE_HALF = 0.02
-F32 = np.float32
-
-
-def signals(env, info: dict) -> dict[str, bool]:
-    return {
-        "grasp_cubeA": bool(info["is_cubeA_grasped"]),
-        "cubeA_on_cubeB": bool(info["is_cubeA_on_cubeB"]),
-    }
-
-
-def evaluate(env) -> dict[str, bool]:
-    from envs.maniskill import lean
-
-    offset = lean.pose(env.cubeA)[0] - lean.pose(env.cubeB)[0]
-    half = env.cube_half_size.numpy()
-    on = bool(
-        np.linalg.norm(offset[:2]) <= np.linalg.norm(half[:2]) + F32(0.005)
-        and abs(offset[2] - half[2] * 2) <= F32(0.005)
-    )
-    grasped = lean.is_grasping(env, env.cubeA)
-    static = lean.is_static(env.cubeA, lin_thresh=1e-2, ang_thresh=0.5)
-    return {"grasp_cubeA": grasped, "cubeA_on_cubeB": on, "success": on and static and not grasped}
 
 
 def initialize(env, env_idx, variant: ResetVariant) -> None:
@@ -88,7 +70,7 @@ TASK = ManiSkillTask(
     ),
     base_env_id="StackCube-v1",
     objects={"cubeA": "cubeA", "cubeB": "cubeB"},
-    signals=signals,
-    evaluate=evaluate,
+    signals=cube_on_cube_signals,
+    evaluate=cube_on_cube_evaluate,
     initialize=initialize,
 )

@@ -11,19 +11,20 @@ Reset variants (world frame; the table centre is the origin, the Panda base at x
 the cubes' yaw is uniform, cube A lies on the right (y < 0), cube B on the left:
 - D0 (the source demos'): cube A in x in [-0.15, 0.1], y in [-0.25, -0.1]; cube B in
   x in [-0.15, 0.1], y in [0.1, 0.25]; the wall out of the way, across the far end of the
-  table (x = 0.38, along y).
-- wall: D0's cubes, the wall between them along x, its centre in x in [-0.1, 0.0], y = 0.
+  table (its centre in x in [0.37, 0.38], y in [-0.005, 0.005], along y).
+- wall: D0's cubes, the wall between them along x, its centre in x in [-0.1, 0.0],
+  y in [-0.005, 0.005].
 """
 
 from __future__ import annotations
 
 import math
 
-from envs.maniskill.tasks import ManiSkillTask
-from envs.maniskill.tasks.stack_cube import CUBE_HALF, evaluate, signals
+from envs.maniskill.tasks import ManiSkillTask, cube_on_cube_evaluate, cube_on_cube_signals
 from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
 
 OBJECTS = ("cubeA", "cubeB", "wall")
+CUBE_HALF = 0.02
 WALL_HALF = (0.2, 0.01, 0.07)  # [m] half extents along its own x, y, z (below the TCP at home)
 CUBE_A = ObjectBounds((-0.15, 0.1), (-0.25, -0.1), (0.0, 2 * math.pi))
 CUBE_B = ObjectBounds((-0.15, 0.1), (0.1, 0.25), (0.0, 2 * math.pi))
@@ -65,14 +66,14 @@ TASK = ManiSkillTask(
                 {
                     "cubeA": CUBE_A,
                     "cubeB": CUBE_B,
-                    "wall": ObjectBounds((0.38, 0.38), (0.0, 0.0), (math.pi / 2, math.pi / 2)),
+                    "wall": ObjectBounds((0.37, 0.38), (-0.005, 0.005), (math.pi / 2, math.pi / 2)),
                 }
             ),
             "wall": ResetVariant(
                 {
                     "cubeA": CUBE_A,
                     "cubeB": CUBE_B,
-                    "wall": ObjectBounds((-0.1, 0.0), (0.0, 0.0), (0.0, 0.0)),
+                    "wall": ObjectBounds((-0.1, 0.0), (-0.005, 0.005), (0.0, 0.0)),
                 }
             ),
         },
@@ -94,8 +95,8 @@ TASK = ManiSkillTask(
     ),
     base_env_id="StackCube-v1",
     objects={"cubeA": "cubeA", "cubeB": "cubeB", "wall": "wall"},
-    signals=signals,
-    evaluate=evaluate,
+    signals=cube_on_cube_signals,
+    evaluate=cube_on_cube_evaluate,
     initialize=initialize,
     load_scene=load_scene,
 )

@@ -1,0 +1,95 @@
+"""The transit pipeline's report (transit/dvc.yaml): each cell generated with linear and
+with planned transit (generate.transit), side by side."""
+
+from __future__ import annotations
+
+from mimicgen_pipe.metrics import Metrics
+from mimicgen_pipe.params import Params
+from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
+from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_delta
+from mimicgen_pipe.report.inputs import MetricsSet
+
+WALL_TASK, WALL_VARIANT = "stack_cube_wall", "wall"  # the cell where a wall blocks the line
+
+
+def transit_cells(params: Params) -> list[tuple[str, str]]:
+    """(task, variant) of every cell: each task's D0, and stack_cube_wall's wall."""
+    cells = [(task, "D0") for task in params.planned_transit.tasks]
+    return (
+        cells + [(WALL_TASK, WALL_VARIANT)] if WALL_TASK in params.planned_transit.tasks else cells
+    )
+
+
+def transit_run(ms: MetricsSet, task: str, variant: str, planned: bool) -> Metrics | None:
+    """The fixed attempts of ``task`` on ``variant`` with planned (or linear) transit: the
+    planned run's metrics count planner failures, the linear run's do not."""
+    runs = [
+        m
+        for m in ms.find(stage="generate", task=task, variant=variant, purpose="dgr")
+        if ("planner_failures" in m.values) == planned
+    ]
+    return runs[0] if len(runs) == 1 else None
+
+
+def _cell(m: Metrics | None, key: str, digits: int = 1) -> str:
+    return MISSING if m is None else fmt(m.values.get(key), digits)
+
+
+def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
+    rows = []
+    for task, variant in transit_cells(params):
+        lin = transit_run(ms, task, variant, planned=False)
+        plan = transit_run(ms, task, variant, planned=True)
+        kept = [
+            MISSING
+            if m is None
+            else f"{fmt(m.values['dgr'])} ({m.values['successes']}/{m.values['attempts']})"
+            for m in (lin, plan)
+        ]
+        steps = [
+            MISSING if m is None else fmt(m.values["steps"] / max(1, m.values["attempts"]), 0)
+            for m in (lin, plan)
+        ]
+        rows.append(
+            (
+                f"{task} ({variant})",
+                *kept,
+                fmt_delta(*(None if m is None else m.values["dgr"] for m in (lin, plan))),
+                _cell(plan, "planner_failures"),
+                _cell(lin, "seconds_per_attempt_mean", 2),
+                _cell(plan, "seconds_per_attempt_mean", 2),
+                *steps,
+            )
+        )
+    table = Table(
+        (
+            "task (variant)",
+            "linear DGR % (kept/attempts)",
+            "planned DGR % (kept/attempts)",
+            "planned − linear",
+            "planner failures",
+            "s/attempt linear",
+            "s/attempt planned",
+            "steps/attempt linear",
+            "steps/attempt planned",
+        ),
+        tuple(rows),
+    )
+    g = params.generate.planner
+    return [
+        Heading(1, "Linear vs planned transit"),
+        Text(
+            "Each cell generated twice from the same source demos and attempt seeds, "
+            f"{params.planned_transit.attempts} fixed attempts at σ "
+            f"{params.suite.action_noise}: with MimicGen's straight interpolation (linear, "
+            "paper M.2) and with a motion planner's collision-free path to each segment's "
+            f"approach (planned: approach within {g.approach_distance} m of the reference "
+            f"object, clearance {g.clearance} m, at most {g.max_joint_step} rad per joint "
+            "and step). stack_cube_wall's source demos are recorded with its wall out of the "
+            "way (D0); in its variant wall, the wall stands between the cubes. Planner "
+            "failures: attempts stopped because no path was found, apart from task "
+            f"failures. Seconds and steps per attempt over all attempts. `{MISSING}` marks a "
+            "run the pipeline did not produce."
+        ),
+        table,
+    ]
