@@ -27,7 +27,9 @@ from stages import add_selection_arguments, stage_params
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_selection_arguments(p)
     p.add_argument(
-        "--data", required=True, help='the policy\'s training data: "source" or a variant'
+        "--data",
+        required=True,
+        help='the policy\'s training data: "source", a variant or the name it was trained under',
     )
     p.add_argument("--variant", required=True, help="reset variant to evaluate in, e.g. D1")
     p.add_argument("--policies", help="checkpoint directory (default: data/policies/<task>_<data>)")

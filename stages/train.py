@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         required=True,
         nargs="+",
         help='training data, one policy each: "source" (the source demos) or a reset variant '
-        "such as D1 (that variant's generated store)",
+        "such as D1 (that variant's generated store); with --store, any name for each store",
     )
     p.add_argument(
         "--store",
@@ -84,7 +85,10 @@ def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
             )
     spec = envs.task_spec(params.backend, params.task)
     for d in data:
-        if d != "source":
+        if args.store is not None:  # any name for a store given: it names the policy
+            if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]*", d):
+                raise InputError(f"--data {d!r}: expected letters, digits, _ and - only")
+        elif d != "source":
             envs.check_variant(spec, d)
     t = params.task
     return [

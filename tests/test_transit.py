@@ -225,3 +225,20 @@ def read_store(path: Path):
     from mimicgen_pipe.store import read_store as read
 
     return read(path)
+
+
+def test_a_policy_trained_on_a_named_store_takes_a_plain_name(tmp_path):
+    """train --data names the policy of each --store: any plain name, as the transit
+    pipeline's wall_linear and wall_planned; a name that is no plain word is refused first."""
+    (tmp_path / "params.yaml").write_text("task: stack\nbackend: pybullet\ntrain: {workers: 1}\n")
+    res = cli("train", "--data", "wall/planned", "--store", "missing.zarr", cwd=tmp_path,
+              check=False)  # fmt: skip
+    assert res.returncode == 2
+    assert res.stderr.strip().splitlines()[-1] == (
+        "mimicgen-pipe train: error: --data 'wall/planned': expected letters, digits, _ and - only"
+    )
+    res = cli("train", "--data", "wall_planned", "--store", "missing.zarr", cwd=tmp_path,
+              check=False)  # fmt: skip
+    assert res.returncode == 2 and "missing.zarr" in res.stderr.strip().splitlines()[-1]
+    res = cli("train", "--data", "wall_planned", cwd=tmp_path, check=False)  # no store: a variant
+    assert "'wall_planned' is not" in res.stderr or "variant 'wall_planned'" in res.stderr
