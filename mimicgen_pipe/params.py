@@ -228,12 +228,13 @@ class TransferParams:
 class PlannedTransitParams:
     """The transit pipeline (transit/dvc.yaml): ``attempts`` fixed attempts with linear and
     with planned transit, on the D0 of each task of ``tasks`` and on stack_cube_wall's
-    variant wall."""
+    variant wall; policies on ``policy_demos`` kept demos of each transit on the wall."""
 
     tasks: list[str] = field(
         default_factory=lambda: ["stack_cube_wall", "pull_cube_tool", "place_sphere"]
     )
     attempts: int = 200
+    policy_demos: int = 100
 
 
 @dataclass(frozen=True)
@@ -327,6 +328,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "transfer.attempts": (1, 10_000_000),
     "suite.attempts": (1, 10_000_000),
     "planned_transit.attempts": (1, 10_000_000),
+    "planned_transit.policy_demos": (1, 10_000_000),
     "suite.action_noise": (0.0, 1.0),
 }
 

@@ -94,15 +94,20 @@ def with_generate_options(
     attempts: int | None,
     action_noise: float | None,
     transit: str | None = None,
+    num_demos: int | None = None,
 ) -> Params:
     """``params`` with the generate stage's options in place of the keys they stand for:
     ``attempts``, exactly that many attempts (generate.mode fixed_attempts, max_attempts);
-    ``action_noise``, generate.action_noise; ``transit``, generate.transit. Each is held to
-    its key's range: InputError naming the option otherwise."""
+    ``action_noise``, generate.action_noise; ``transit``, generate.transit; ``num_demos``,
+    until that many succeed (generate.mode guarantee, num_demos). Each is held to its key's
+    range: InputError naming the option otherwise."""
     g = params.generate
+    if attempts is not None and num_demos is not None:
+        raise InputError("--attempts and --num-demos: one of them (fixed attempts or demos)")
     for flag, key, value in (
         ("--attempts", "generate.max_attempts", attempts),
         ("--action-noise", "generate.action_noise", action_noise),
+        ("--num-demos", "generate.num_demos", num_demos),
     ):
         why = range_error(key, value) if value is not None else None
         if why:
@@ -113,6 +118,8 @@ def with_generate_options(
         g = dataclasses.replace(g, action_noise=action_noise)
     if transit is not None:
         g = dataclasses.replace(g, transit=transit)
+    if num_demos is not None:
+        g = dataclasses.replace(g, mode="guarantee", num_demos=num_demos)
     return dataclasses.replace(params, generate=g)
 
 

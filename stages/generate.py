@@ -54,6 +54,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="sigma of the action noise, in place of generate.action_noise (the suite's own)",
     )
     p.add_argument(
+        "--num-demos",
+        type=int,
+        help="run until this many attempts succeed (guarantee mode, capped by "
+        "generate.max_attempts), whatever generate.mode and num_demos say",
+    )
+    p.add_argument(
         "--transit",
         choices=TRANSITS,
         help="linear or planned transit, in place of generate.transit",
@@ -63,7 +69,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> None:
     # the options stand in for params keys, and are held to the same ranges
     params = with_generate_options(
-        stage_params(args), args.attempts, args.action_noise, args.transit
+        stage_params(args), args.attempts, args.action_noise, args.transit, args.num_demos
     )
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)

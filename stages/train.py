@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +17,7 @@ from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.params import Params, range_error
 from mimicgen_pipe.training import POLICY_DIR, policy_training, train_policies, training_metrics
 from stages import add_selection_arguments, stage_params
 
@@ -29,6 +30,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         nargs="+",
         help='training data, one policy each: "source" (the source demos) or a reset variant '
         "such as D1 (that variant's generated store); with --store, any name for each store",
+    )
+    p.add_argument(
+        "--num-demos",
+        type=int,
+        help="generated demos each policy trains on (the first N kept), in place of "
+        "train.num_demos",
     )
     p.add_argument(
         "--store",
@@ -105,6 +112,12 @@ def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
 
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
+    if args.num_demos is not None:  # stands in for train.num_demos, held to its range
+        if why := range_error("train.num_demos", args.num_demos):
+            raise InputError(f"--num-demos {args.num_demos}: {why}")
+        params = dataclasses.replace(
+            params, train=dataclasses.replace(params.train, num_demos=args.num_demos)
+        )
     t, prof = params.train, params.train.active
     if not prof.seeds:
         raise InputError(f"{args.params}: train.{t.profile}.seeds: expected at least one seed")
