@@ -16,6 +16,7 @@ from tests.test_cli_errors import run_bad
         ("--attempts", "0", "[1, 10000000] (the range of generate.max_attempts)"),
         ("--action-noise", "inf", "[0.0, 1.0] (the range of generate.action_noise)"),
         ("--action-noise", "nan", "[0.0, 1.0] (the range of generate.action_noise)"),
+        ("--num-demos", "-1", "[0, 10000000] (the range of generate.num_demos)"),
     ],
 )
 def test_an_option_out_of_its_keys_range_is_one_error(tmp_path, option, value, expected):
@@ -24,4 +25,30 @@ def test_an_option_out_of_its_keys_range_is_one_error(tmp_path, option, value, e
     assert msg == (
         f"mimicgen-pipe generate: error: {option} {shown}: expected a value in {expected}, "
         f"got {shown}"
+    )
+
+
+def test_attempts_and_num_demos_together_is_one_error(tmp_path):
+    msg = run_bad(tmp_path, "generate", "--variant", "D0", "--attempts", "5", "--num-demos", "5")
+    assert msg == (
+        "mimicgen-pipe generate: error: --attempts and --num-demos: one of them (fixed "
+        "attempts or demos)"
+    )
+
+
+def test_num_demos_and_transit_stand_in_for_their_keys():
+    from mimicgen_pipe.params import Params
+    from mimicgen_pipe.runner import with_generate_options
+
+    g = with_generate_options(Params(), None, None, "planned", 7).generate
+    assert (g.mode, g.num_demos, g.transit) == ("guarantee", 7, "planned")
+    g = with_generate_options(Params(), 30, None).generate
+    assert (g.mode, g.max_attempts, g.transit) == ("fixed_attempts", 30, "linear")
+
+
+def test_train_num_demos_is_held_to_its_keys_range(tmp_path):
+    msg = run_bad(tmp_path, "train", "--data", "D0", "--num-demos", "0")
+    assert msg == (
+        "mimicgen-pipe train: error: --num-demos 0: expected a value in [1, 10000000] (the "
+        "range of train.num_demos), got 0"
     )
