@@ -103,7 +103,6 @@ def run(args: argparse.Namespace) -> None:
     label = f"generate {params.task} {args.variant}"
     result = generate(job, seeds, executor, work, num_demos, g.robot, label)
     attrs = generated_attrs(run, params, args.variant, spec, store.attrs)
-    metrics = result.metrics
     # written aside, then renamed failed store, metrics, kept store: a reader that finds the
     # new kept store finds the rest of its run beside it
     with output_set(failed_out, metrics_path, out) as (tmp_failed, tmp_metrics, tmp_out):
@@ -118,7 +117,7 @@ def run(args: argparse.Namespace) -> None:
                 variant=args.variant,
                 purpose=GENERATE_PURPOSE[g.mode],
             )
-            | {"run_id": run, **metrics},
+            | {"run_id": run, **(metrics := result.metrics)},
         )
     work.remove()
     print(

@@ -251,6 +251,7 @@ def test_coverage_and_report_stages_on_the_pipeline(pipeline, tmp_path):
             paper=str(PAPER),
             out=str(out),
             suite=False,
+            transit=False,
         )
     )
     md = (out / "report.md").read_text()
