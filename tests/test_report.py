@@ -580,6 +580,16 @@ def test_the_transit_report_sets_each_cells_linear_and_planned_runs_side_by_side
         run("stack_cube_wall", "wall", 60.0, True, seconds_per_attempt_mean=1.25),
         run("stack_cube_wall", "D0", 95.0, False),
         run("pull_cube_tool", "D0", 80.0, True),  # its linear run is absent
+        # the wall's policies: their data (generated until 100 kept) and their rollouts
+        run("stack_cube_wall", "wall", 70.9, True, purpose="policy_data", attempts=141),
+        m(
+            "evaluate",
+            "stack_cube_wall",
+            "wall",
+            data="wall_planned",
+            success_rate_max=6.0,
+            success_rate_last=2.0,
+        ),  # fmt: skip
     ]
     md = render_markdown(build_transit_report(Params(), MetricsSet(tuple(files))))
     wall = rows_of(md, "| stack_cube_wall (wall)")
@@ -594,3 +604,7 @@ def test_the_transit_report_sets_each_cells_linear_and_planned_runs_side_by_side
         "| pull_cube_tool (D0) | missing | 80.0 (160/200) | missing | 3 |"
     )
     assert rows_of(md, "| place_sphere (D0)")[0].startswith("| place_sphere (D0) | missing |")
+    assert rows_of(md, "| linear |", "| planned |") == [
+        "| linear | missing | missing | missing |",
+        "| planned | 100 of 141 attempts | 6.0 | 2.0 |",
+    ]

@@ -76,6 +76,10 @@ def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
         tuple(rows),
     )
     g = params.generate.planner
+    return [*_dgr_blocks(params, table, g), *policy_blocks(params, ms)]
+
+
+def _dgr_blocks(params: Params, table: Table, g) -> list[Block]:
     return [
         Heading(1, "Linear vs planned transit"),
         Text(
@@ -92,4 +96,43 @@ def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
             "run the pipeline did not produce."
         ),
         table,
+    ]
+
+
+def policy_blocks(params: Params, ms: MetricsSet) -> list[Block]:
+    """The wall variant's policies, one per transit: the demos they trained on, the attempts
+    that took, and their success on the wall variant."""
+    rows = []
+    for transit in ("linear", "planned"):
+        data = f"wall_{transit}"
+        gen = [
+            m
+            for m in ms.find(stage="generate", task=WALL_TASK, variant=WALL_VARIANT)
+            if m.purpose == "policy_data"
+            and ("planner_failures" in m.values) == (transit == "planned")
+        ]
+        ev = ms.find(stage="evaluate", task=WALL_TASK, variant=WALL_VARIANT, data=data)
+        g = gen[0].values if len(gen) == 1 else None
+        e = ev[0].values if len(ev) == 1 else None
+        rows.append(
+            (
+                transit,
+                MISSING if g is None else f"{g['successes']} of {g['attempts']} attempts",
+                MISSING if e is None else fmt(e["success_rate_max"]),
+                MISSING if e is None else fmt(e["success_rate_last"]),
+            )
+        )
+    n = params.planned_transit.policy_demos
+    return [
+        Heading(2, "Policies on the wall variant"),
+        Text(
+            f"BC-RNN policies (train profile {params.train.profile}) on {n} kept demos of "
+            "each transit on the wall variant, generated until that many succeeded, each "
+            f"rolled out {params.evaluate.episodes} times per checkpoint on the wall variant: "
+            "success % of the best checkpoint and of the last."
+        ),
+        Table(
+            ("transit", "demos (kept of attempts)", "success % max", "success % last"),
+            tuple(rows),
+        ),
     ]
