@@ -18,6 +18,7 @@ from typing import Any, Literal
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.pose_noise import level_error
 from mimicgen_pipe.registry import choices
+from mimicgen_pipe.transit import PlannerSettings
 from mimicgen_pipe.yamlfile import load_yaml
 
 
@@ -32,19 +33,6 @@ class SourceParams:
     seed: int = 0
     robot: str = "panda"
     from_file: str | None = None
-
-
-@dataclass(frozen=True)
-class PlannerParams:
-    """The motion planner of planned transit (generate.transit: planned; the fields of
-    mimicgen_pipe.transit.PlannerSettings, with their units)."""
-
-    approach_distance: float = 0.1
-    clearance: float = 0.02
-    max_joint_step: float = 0.02
-    max_iterations: int = 2000
-    shortcuts: int = 50
-    ik_tries: int = 20
 
 
 @dataclass(frozen=True)
@@ -73,7 +61,7 @@ class GenerateParams:
     executor: str = "local"
     robot: str = "panda"
     transit: Literal["linear", "planned"] = "linear"
-    planner: PlannerParams = field(default_factory=PlannerParams)
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
 
 
 @dataclass(frozen=True)

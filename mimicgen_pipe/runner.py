@@ -39,7 +39,6 @@ from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
 from mimicgen_pipe.store import EpisodeStore, read_store, write_store
 from mimicgen_pipe.taskspec import TaskSpec
-from mimicgen_pipe.transit import PlannerSettings
 
 
 def attempt_seed(seed: int, variant: str, attempt: int) -> int:
@@ -166,7 +165,7 @@ def attempt_job(
         g.per_subtask,
         pose_noise,
         g.transit,
-        PlannerSettings(**dataclasses.asdict(g.planner)),
+        g.planner,
     )
     return AttemptJob(make_env, source_demos(store, spec.objects), spec, config, variant), store
 

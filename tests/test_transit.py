@@ -13,6 +13,7 @@ import pytest
 
 from mimicgen_pipe.metrics import generation_metrics
 from mimicgen_pipe.params import Params, data_params, load_params
+from mimicgen_pipe.store import read_store
 from mimicgen_pipe.transit import PlannerSettings, approach_start, densify, joint_path
 from tests.conftest import cli
 
@@ -158,7 +159,6 @@ def test_a_planned_transit_goes_over_the_wall_the_straight_line_hits(wall_task):
     from envs import make_env
     from mimicgen_pipe.generation import GenerationConfig, replay_actions, run_attempt
     from mimicgen_pipe.runner import attempt_seed, source_demos
-    from mimicgen_pipe.store import read_store
 
     env = make_env("maniskill", "stack_cube_wall")
     store = read_store(wall_task / "data/parsed/stack_cube_wall.zarr")
@@ -219,12 +219,6 @@ def test_a_planned_generate_run_records_planner_failures_apart(wall_task):
     failed = read_store(wall_task / "data/plan/wall_failed.zarr")
     assert "planner_failure" in failed.episodes
     assert failed.attrs["params"]["generate"]["transit"] == "planned"
-
-
-def read_store(path: Path):
-    from mimicgen_pipe.store import read_store as read
-
-    return read(path)
 
 
 def test_a_policy_trained_on_a_named_store_takes_a_plain_name(tmp_path):

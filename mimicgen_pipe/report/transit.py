@@ -20,12 +20,15 @@ def transit_cells(params: Params) -> list[tuple[str, str]]:
     )
 
 
-def transit_run(ms: MetricsSet, task: str, variant: str, planned: bool) -> Metrics | None:
-    """The fixed attempts of ``task`` on ``variant`` with planned (or linear) transit: the
-    planned run's metrics count planner failures, the linear run's do not."""
+def transit_run(
+    ms: MetricsSet, task: str, variant: str, planned: bool, purpose: str = "dgr"
+) -> Metrics | None:
+    """The generate run of ``task`` on ``variant`` with planned (or linear) transit made for
+    ``purpose`` (fixed attempts: "dgr"; a dataset: "policy_data"), None unless exactly one:
+    the planned run's metrics count planner failures, the linear run's do not."""
     runs = [
         m
-        for m in ms.find(stage="generate", task=task, variant=variant, purpose="dgr")
+        for m in ms.find(stage="generate", task=task, variant=variant, purpose=purpose)
         if ("planner_failures" in m.values) == planned
     ]
     return runs[0] if len(runs) == 1 else None
@@ -76,10 +79,6 @@ def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
         tuple(rows),
     )
     g = params.generate.planner
-    return [*_dgr_blocks(params, table, g), *policy_blocks(params, ms)]
-
-
-def _dgr_blocks(params: Params, table: Table, g) -> list[Block]:
     return [
         Heading(1, "Linear vs planned transit"),
         Text(
@@ -96,6 +95,7 @@ def _dgr_blocks(params: Params, table: Table, g) -> list[Block]:
             "run the pipeline did not produce."
         ),
         table,
+        *policy_blocks(params, ms),
     ]
 
 
@@ -104,15 +104,9 @@ def policy_blocks(params: Params, ms: MetricsSet) -> list[Block]:
     that took, and their success on the wall variant."""
     rows = []
     for transit in ("linear", "planned"):
-        data = f"wall_{transit}"
-        gen = [
-            m
-            for m in ms.find(stage="generate", task=WALL_TASK, variant=WALL_VARIANT)
-            if m.purpose == "policy_data"
-            and ("planner_failures" in m.values) == (transit == "planned")
-        ]
-        ev = ms.find(stage="evaluate", task=WALL_TASK, variant=WALL_VARIANT, data=data)
-        g = gen[0].values if len(gen) == 1 else None
+        run = transit_run(ms, WALL_TASK, WALL_VARIANT, transit == "planned", "policy_data")
+        ev = ms.find(stage="evaluate", task=WALL_TASK, variant=WALL_VARIANT, data=f"wall_{transit}")
+        g = None if run is None else run.values
         e = ev[0].values if len(ev) == 1 else None
         rows.append(
             (
