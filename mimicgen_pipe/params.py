@@ -233,7 +233,10 @@ class SuiteParams:
     is the paper's sigma 0.05 in physical units: robosuite's OSC moves 0.05 m per action
     unit, ManiSkill's pd_ee_delta_pose 0.1 m, so both mean 2.5 mm per step.
     object_transfer: tasks also generated on their O1 variant (paper F: another object,
-    the same source demos)."""
+    the same source demos).
+    policy_tasks: tasks with policies on D0 and D1 (source, D0 and D1 data; paper P.1);
+    d0_policy_tasks: tasks with policies on D0 only (source and D0 data). Both among
+    ``tasks``, none in both."""
 
     backend: str = "maniskill"
     tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
@@ -241,6 +244,8 @@ class SuiteParams:
     attempts: int = 200
     action_noise: float = 0.025
     object_transfer: list[str] = field(default_factory=list)
+    policy_tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
+    d0_policy_tasks: list[str] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -397,6 +402,7 @@ _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "transfer.variants": _non_empty_unique,
     "transfer.robots": _non_empty_unique,
     "suite.tasks": _non_empty_unique,
+    "suite.policy_tasks": _non_empty_unique,
     "planned_transit.tasks": _non_empty_unique,
     "suite.variants": _non_empty_unique,
 }

@@ -33,11 +33,19 @@ def add_generated_arguments(p: argparse.ArgumentParser) -> None:
 def check_variants(params: Params, path: str) -> None:
     """InputError naming the params key when the main task (generate.variants), a
     robot-transfer task (transfer.variants) or a suite task (suite.variants) lacks one of
-    the listed reset variants."""
+    the listed reset variants, or a suite task with policies is not a suite task or is
+    listed twice."""
+    u = params.suite
+    seen: set[str] = set()
+    for key in ("suite.policy_tasks", "suite.d0_policy_tasks"):
+        for task in getattr(u, key.split(".")[1]):
+            if task not in u.tasks or task in seen:
+                why = "not in suite.tasks" if task not in u.tasks else "listed twice"
+                raise InputError(f"{path}: {key}: {task!r} is {why}")
+            seen.add(task)
     t = params.transfer
     lists = [("generate.variants", params.backend, params.task, params.generate.variants)]
     lists += [("transfer.variants", t.backend, task, t.variants) for task in t.tasks]
-    u = params.suite
     lists += [("suite.variants", u.backend, task, u.variants) for task in u.tasks]
     lists += [("suite.object_transfer", u.backend, task, ["O1"]) for task in u.object_transfer]
     for key, backend, task, variants in lists:

@@ -90,6 +90,14 @@ class VariantResets:
         with torch.device(self.device):
             (self.task.initialize or redraw_planar)(self, env_idx, variants[self.variant])
 
+    def evaluate(self) -> dict:
+        """ManiSkill's evaluation; for a task with a scene of its own (``load_scene``), its
+        success is the task's (``task.evaluate``), not the base env's task's."""
+        info = super().evaluate()
+        if self.task.load_scene is not None:
+            info["success"] = torch.tensor([self.task.evaluate(self)["success"]])
+        return info
+
     def native_initialize(self, env_idx: torch.Tensor, options: dict | None = None) -> None:
         """ManiSkill's own _initialize_episode of the task."""
         super()._initialize_episode(env_idx, options or {})
@@ -351,8 +359,15 @@ class ManiSkillEnv:
         worked = {n for n in self._u.scene.actors if n.startswith("table")}
         worked |= {actor[s.reference_object].name for s in self.spec.subtasks}
         # the task's objects too: an actor merged across parallel scenes (PegInsertionSide's
-        # peg) is not among the scene's actors
-        self._planner.sync(self._u.scene.actors | objects, held, worked, settings.clearance)
+        # peg) is not among the scene's actors; and the links of the scene's articulations
+        # but the robot (e.g. a cabinet and its drawer)
+        links = {
+            link.name: link
+            for art in self._u.scene.articulations.values()
+            if art is not self._u.agent.robot
+            for link in art.links
+        }
+        self._planner.sync(self._u.scene.actors | links | objects, held, worked, settings.clearance)
         return self._planner.plan(target, settings, rng)
 
     def close(self) -> None:

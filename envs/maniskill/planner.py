@@ -58,11 +58,13 @@ _ALONG_Z = poses.pose_from_pq(np.zeros(3), np.array([np.sqrt(0.5), 0.0, np.sqrt(
 
 def actor_shapes(actor, margin: float = 0.0) -> list[tuple[object, np.ndarray]]:
     """(FCL geometry grown by ``margin`` [m], 4x4 world pose) for each collision shape of a
-    ManiSkill actor."""
+    ManiSkill actor or articulation link."""
     import sapien.physx as physx
     from mplib.pymp.collision_detection import fcl
 
     entity = actor._objs[0]
+    if isinstance(entity, physx.PhysxArticulationLinkComponent):
+        entity = entity.entity
     body = entity.find_component_by_type(physx.PhysxRigidBaseComponent)
     if body is None:
         return []

@@ -18,6 +18,7 @@ import h5py
 import numpy as np
 
 from envs import load_task
+from envs.maniskill.tasks import ManiSkillTask
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.yamlfile import read_text
 
@@ -210,11 +211,17 @@ def run_motion_planner(
         raise RuntimeError(f"motion planning failed:\n{res.stderr[-4000:]}")
     planned, failed = (int(w) for w in res.stdout.strip().splitlines()[-1].split())
     raw = out_dir / "planned.h5"
+    # ManiSkill's converter, in a child that has registered the env the demos were recorded in
+    convert = (
+        "import sys; from envs.maniskill.source import _convert_child; "
+        "_convert_child(sys.argv[1], sys.argv[2:])"
+    )
     conv = subprocess.run(
         [
             sys.executable,
-            "-m",
-            "mani_skill.trajectory.replay_trajectory",
+            "-c",
+            convert,
+            task,
             "--traj-path",
             str(raw),
             "-c",
@@ -237,6 +244,23 @@ def run_motion_planner(
     return converted[0], planned, failed
 
 
+def demo_env_id(task: ManiSkillTask) -> str:
+    """The env the demonstrator records in: the task's own (its scene, its D0 reset) for a
+    demonstrator of the task's own in a scene of the task's own, else ManiSkill's env."""
+    if callable(task.planner) and task.load_scene is not None:
+        from envs.maniskill.env import ManiSkillEnv
+
+        return ManiSkillEnv.env_id_for(task)
+    return task.base_env_id
+
+
+def _convert_child(task: str, args: list[str]) -> None:
+    from mani_skill.trajectory import replay_trajectory
+
+    demo_env_id(load_task("maniskill", task))  # registers the task's env where it is used
+    replay_trajectory.main(replay_trajectory.parse_args(args))
+
+
 def _plan_child(
     task: str, agent_uid: str, num_demos: str, seed: str, out_dir: str, max_tries: str
 ) -> str:
@@ -248,7 +272,7 @@ def _plan_child(
 
     spec = load_task("maniskill", task)
     env = gym.make(
-        spec.base_env_id,
+        demo_env_id(spec),
         obs_mode="none",
         control_mode="pd_joint_pos",
         sim_backend="physx_cpu",
