@@ -16,12 +16,12 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import Metrics, metrics_identity, read_metrics, write_metrics
 from mimicgen_pipe.outputs import claims
 from mimicgen_pipe.params import Params
-from mimicgen_pipe.report import build_report, build_suite_report, build_transit_report
+from mimicgen_pipe.report import build_report, build_suite_report, build_transit_report, suite
 from mimicgen_pipe.report.ablations import suite_ablation_blocks
 from mimicgen_pipe.report.blocks import Heading, Image, Table, Text, render_html, render_markdown
 from mimicgen_pipe.report.curves import draw_curves, read_curves
 from mimicgen_pipe.report.inputs import MetricsSet, Run, read_metrics_folder
-from mimicgen_pipe.report.paper import load_paper_results
+from mimicgen_pipe.report.paper import PaperResults, load_paper_results
 from mimicgen_pipe.report.suite import suite_dgr_blocks, suite_policy_blocks
 from mimicgen_pipe.report.summary import headline_numbers
 from mimicgen_pipe.report.transfer import transfer_table
@@ -539,6 +539,30 @@ def test_suite_policy_table_sets_source_beside_generated_and_the_paper():
         "place_sphere (D1)", "Pick Place", "0.0 / 0.0", "missing", "missing",
         "– (none in the paper)",
     )  # fmt: skip
+
+
+def test_long_tasks_sit_beside_the_papers_kitchen_and_coffee_preparation():
+    """A suite task of five or more subtasks gets a row in the long-task table, with its DGR
+    per variant and its D0 policies, under the paper's long tasks; a short task gets none."""
+    specs = [envs.task_spec("maniskill", t) for t in ("drawer_cleanup", "place_sphere")]
+    files = (
+        gen("drawer_cleanup", "D0", 64.0, purpose="dgr"),
+        gen("drawer_cleanup", "D2", 30.5, purpose="dgr"),
+        m("evaluate", "drawer_cleanup", "D0", data="source", success_rate_max=2.0),
+        m("evaluate", "drawer_cleanup", "D0", data="D0", success_rate_max=48.0),
+        gen("place_sphere", "D0", 90.0, purpose="dgr"),
+    )
+    params = suite_params(["drawer_cleanup", "place_sphere"])
+    blocks = suite.long_task_blocks(params, specs, MetricsSet(files), load_paper_results(PAPER))
+    assert blocks[0] == Heading(2, "Long tasks beside the paper's")
+    assert blocks[-1].rows == (
+        ("`drawer_cleanup` (ours)", "6", "64.0 (128/200)", "missing", "30.5 (61/200)", "2.0",
+         "48.0"),
+        ("Kitchen (paper)", "7", "100.0", "42.7", "missing", "43.3 ± 3.4", "100.0 ± 0.0"),
+        ("Coffee Preparation (paper)", "5", "53.2", "36.1", "missing", "2.0 ± 0.0",
+         "76.0 ± 5.7"),
+    )  # fmt: skip
+    assert suite.long_task_blocks(params, specs[1:], MetricsSet(files), PaperResults(())) == []
 
 
 def test_suite_ablations_compare_with_their_own_default_run():

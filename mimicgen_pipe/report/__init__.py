@@ -82,6 +82,7 @@ def build_suite_report(
         *suite.suite_dgr_blocks(params, specs, ms, paper),
         *suite.object_transfer_blocks(params, specs, ms, paper),
         *suite.suite_policy_blocks(params, specs, ms, paper),
+        *suite.long_task_blocks(params, specs, ms, paper),
     ]
     for spec in specs:
         if ablations.get(spec.name):
