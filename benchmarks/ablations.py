@@ -48,6 +48,11 @@ RUNS: dict[str, tuple[str, dict[str, Any]]] = {
         "nearest-neighbour selection per subtask, the paper's Stack setting (Table M.2)",
         {"generate": {"selection": "nearest_neighbor", "per_subtask": True}},
     ),
+    "nearest_neighbor_robot_distance_per_subtask": (
+        "nearest-neighbour selection by the end effector's distance to each segment's start, "
+        "per subtask (MimicGen's nearest_neighbor_robot_distance; not in the paper's tables)",
+        {"generate": {"selection": "nearest_neighbor_robot_distance", "per_subtask": True}},
+    ),
     "interpolation_25_25": (
         "n_interp 25, n_fixed 25 instead of 5, 0 (Appendix G)",
         {"generate": {"n_interp": 25, "n_fixed": 25}},

@@ -15,6 +15,7 @@ from mimicgen_pipe.observations import low_dim_observation
 from mimicgen_pipe.pose_noise import PoseNoise, generation_rng, perturb_pose
 from mimicgen_pipe.registry import load
 from mimicgen_pipe.segments import segment_bounds
+from mimicgen_pipe.selection import Candidates
 from mimicgen_pipe.taskspec import TaskSpec
 from mimicgen_pipe.transit import PlannerSettings, approach_start
 
@@ -117,23 +118,19 @@ def pose_distance(candidates: np.ndarray, pose: np.ndarray) -> np.ndarray:
     return dpos + poses.rotation_angle(candidates[:, :3, :3], pose[:3, :3])
 
 
+def draw_nearest(distances: np.ndarray, rng: np.random.Generator, nn_k: int) -> int:
+    """Index of one of the ``nn_k`` smallest ``distances`` (N,), drawn uniformly; ties are
+    ranked in index order."""
+    order = np.argsort(distances, kind="stable")
+    return int(order[rng.integers(min(nn_k, len(distances)))])
+
+
 def select_source(
-    strategy: str,
-    candidate_object_poses: np.ndarray,
-    current_object_pose: np.ndarray,
-    rng: np.random.Generator,
-    nn_k: int = 3,
+    strategy: str, candidates: Candidates, rng: np.random.Generator, nn_k: int = 3
 ) -> int:
     """Index of the source demo to follow (paper M.3), as selection strategy ``strategy``
-    (a module of mimicgen_pipe.selection) picks it.
-
-    candidate_object_poses: (N, 4, 4) world pose of the reference object at the start of each
-    source demo's segment; current_object_pose: (4, 4) in the new scene. "random" draws
-    uniformly; "nearest_neighbor" ranks by :func:`pose_distance` and draws uniformly from the
-    first ``nn_k``.
-    """
-    select = load("mimicgen_pipe.selection", strategy).select
-    return select(candidate_object_poses, current_object_pose, rng, nn_k)
+    (a module of mimicgen_pipe.selection) picks it from ``candidates``."""
+    return load("mimicgen_pipe.selection", strategy).select(candidates, rng, nn_k)
 
 
 def add_action_noise(actions: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
@@ -245,8 +242,14 @@ def run_attempt(
         ref_now = perturb_pose(obj_now[sub.reference_object], config.pose_noise, pose_rng)
         if demo < 0 or config.per_subtask:
             seg_starts = starts + bounds[:, i, 0]
-            candidates = sources.object_poses[sub.reference_object][seg_starts]
-            demo = select_source(config.selection, candidates, ref_now, rng, config.nn_k)
+            src_objects = sources.object_poses[sub.reference_object][seg_starts]
+            candidates = Candidates(
+                src_objects,
+                ref_now,
+                transform_segment(sources.target_poses[seg_starts], src_objects, ref_now),
+                env.eef_pose(),
+            )
+            demo = select_source(config.selection, candidates, rng, config.nn_k)
         chosen[i] = demo
         s, e = starts[demo] + bounds[demo, i]
         seg = transform_segment(

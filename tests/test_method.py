@@ -12,6 +12,7 @@ from mimicgen_pipe.generation import (
     transform_segment,
 )
 from mimicgen_pipe.segments import segment_bounds, split_into_segments, validate_segments
+from mimicgen_pipe.selection import Candidates
 from mimicgen_pipe.taskspec import SubtaskSpec
 
 
@@ -61,6 +62,14 @@ def test_interpolation_is_linear_and_slerp():
     np.testing.assert_allclose(angles, np.linspace(0, 1.0, 5), atol=1e-9)
 
 
+def by_object(cands: np.ndarray, pose: np.ndarray) -> Candidates:
+    """Candidates whose reference objects stand at ``cands``, the object now at ``pose``;
+    the end effector far from every segment's start."""
+    far = np.eye(4)
+    far[:3, 3] = 5.0
+    return Candidates(cands, pose, cands.copy(), far)
+
+
 def test_nearest_neighbour_ranks_by_paper_distance_and_draws_from_first_k():
     base = np.eye(4)
     cands = np.stack([np.eye(4)] * 5)
@@ -74,12 +83,34 @@ def test_nearest_neighbour_ranks_by_paper_distance_and_draws_from_first_k():
         pose_distance(cands, base), [0.30, 0.05, 0.10, 0.20, 0.51], atol=1e-9
     )
     rng = np.random.default_rng(0)
-    picks = {select_source("nearest_neighbor", cands, base, rng, nn_k=2) for _ in range(200)}
+    c = by_object(cands, base)
+    picks = {select_source("nearest_neighbor", c, rng, nn_k=2) for _ in range(200)}
     assert picks == {1, 2}
-    picks = {select_source("nearest_neighbor", cands, base, rng, nn_k=1) for _ in range(20)}
+    picks = {select_source("nearest_neighbor", c, rng, nn_k=1) for _ in range(20)}
     assert picks == {1}
-    picks = {select_source("random", cands, base, rng) for _ in range(300)}
+    picks = {select_source("random", c, rng) for _ in range(300)}
     assert picks == {0, 1, 2, 3, 4}
+
+
+def test_robot_distance_ranks_segment_starts_by_distance_to_the_end_effector():
+    """nearest_neighbor_robot_distance ranks by where each segment's first target lands in
+    the new scene against the end effector now, not by the objects' poses."""
+    rng = np.random.default_rng(1)
+    eef = poses.pose_from_pq(np.array([0.1, -0.2, 0.3]), np.array([0.0, 1.0, 0.0, 0.0]))
+    offsets = [0.30, 0.02, 0.15, 0.0, 0.08]  # [m] of each segment's first target from eef
+    first = np.stack([eef.copy() for _ in offsets])
+    for k, d in enumerate(offsets):
+        first[k, :3, 3] += [d, 0, 0]
+    first[3, :3, :3] = first[3, :3, :3] @ poses.axis_angle_to_matrix(np.array([0, 0, 0.4]))
+    # object poses ranked the other way round: nearest_neighbor would pick otherwise
+    objects = np.stack([np.eye(4)] * 5)
+    for k, d in enumerate([0.0, 0.5, 0.1, 0.4, 0.3]):
+        objects[k, :3, 3] = [d, 0, 0]
+    c = Candidates(objects, np.eye(4), first, eef)
+    np.testing.assert_allclose(pose_distance(first, eef), [0.30, 0.02, 0.15, 0.4, 0.08], atol=1e-9)
+    picks = {select_source("nearest_neighbor_robot_distance", c, rng, nn_k=2) for _ in range(200)}
+    assert picks == {1, 4}
+    assert {select_source("nearest_neighbor", c, rng, nn_k=2) for _ in range(200)} == {0, 2}
 
 
 def test_action_noise_spares_gripper():

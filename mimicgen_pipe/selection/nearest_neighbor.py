@@ -5,16 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from mimicgen_pipe.generation import pose_distance
+from mimicgen_pipe.generation import draw_nearest, pose_distance
+from mimicgen_pipe.selection import Candidates
 
 
-def select(
-    candidate_object_poses: np.ndarray,
-    current_object_pose: np.ndarray,
-    rng: np.random.Generator,
-    nn_k: int,
-) -> int:
-    """Candidates ranked by pose_distance to the current pose (ties in index order), then
-    one draw, uniform over the first ``nn_k``."""
-    order = np.argsort(pose_distance(candidate_object_poses, current_object_pose), kind="stable")
-    return int(order[rng.integers(min(nn_k, len(candidate_object_poses)))])
+def select(candidates: Candidates, rng: np.random.Generator, nn_k: int) -> int:
+    """Candidates ranked by pose_distance from their reference object's pose to its pose now
+    (ties in index order), then one draw, uniform over the first ``nn_k``."""
+    return draw_nearest(pose_distance(candidates.object_poses, candidates.object_pose), rng, nn_k)

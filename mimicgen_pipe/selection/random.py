@@ -4,12 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from mimicgen_pipe.selection import Candidates
 
-def select(
-    candidate_object_poses: np.ndarray,
-    current_object_pose: np.ndarray,
-    rng: np.random.Generator,
-    nn_k: int,
-) -> int:
+
+def select(candidates: Candidates, rng: np.random.Generator, nn_k: int) -> int:
     """One draw, uniform over the N candidates."""
-    return int(rng.integers(len(candidate_object_poses)))
+    return int(rng.integers(len(candidates.object_poses)))
