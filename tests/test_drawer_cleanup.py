@@ -31,6 +31,28 @@ def test_the_spec_chains_six_subtasks_the_drawer_ones_relative_to_the_drawer():
     assert set(spec.reset_variants) == {"D0", "D1", "D2"}
 
 
+def test_the_drawer_signals_wait_for_the_hand_to_leave_the_handle():
+    """drawer_open and drawer_closed hold only with the handle let go and the hand CLEAR from
+    it, so that the straight transit to the next subtask starts away from the drawer."""
+    from envs.maniskill.tasks import drawer_cleanup as task
+
+    turned = np.array([np.cos(0.15), 0.0, 0.0, np.sin(0.15)], np.float32)  # yaw 0.3 rad
+    drawer = (np.array([0.02, 0.2, 0.0], np.float32), turned)
+    handle = drawer[0] + np.array(
+        [[np.cos(0.3), -np.sin(0.3), 0], [np.sin(0.3), np.cos(0.3), 0], [0, 0, 1]], np.float32
+    ) @ task.HANDLE.astype(np.float32)
+    cube = np.array([0.0, -0.1, 0.02], np.float32)
+    let_go = {"drawer": False, "cubeA": False, "cubeB": False}
+    for opening, name in ((0.1, "drawer_open"), (0.0, "drawer_closed")):
+        for rise, clear in ((0.0, False), (0.03, False), (0.049, False), (0.051, True)):
+            p = {"cubeA": cube, "cubeB": cube, "cubeC": cube, "drawer": drawer,
+                 "tcp": handle + np.array([0, 0, rise], np.float32)}  # fmt: skip
+            assert task._signals(opening, p, let_go)[name] is clear, (name, rise)
+        p["tcp"] = handle + np.array([0, 0, 0.2], np.float32)
+        held = dict(let_go, drawer=True)
+        assert not task._signals(opening, p, held)[name]
+
+
 @pytest.fixture(scope="module")
 def drawer_task(tmp_path_factory) -> Path:
     work = tmp_path_factory.mktemp("drawer")

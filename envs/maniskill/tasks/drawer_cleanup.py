@@ -45,6 +45,10 @@ TRAY_INSIDE = ((0.0, 0.12), (-0.055, 0.055), (0.012, 0.06))  # x, y, z of the sp
 # above stays clear of the cabinet's top
 HANDLE = np.array([-0.005, 0.0, 0.115])
 STACKED = np.linalg.norm(np.full(2, HALF, F32)) + F32(0.005)  # ManiSkill's "on" test, xy
+# [m] the hand counts as gone from the drawer this far from the handle's centre: a drawer
+# subtask ends only then, so that the transit to the next subtask's first pose, a straight
+# line, starts clear of the handle instead of dragging the drawer with the open fingers
+CLEAR = 0.05
 
 
 def _box(link, centre, half, colour, name: str) -> None:
@@ -117,8 +121,20 @@ def _in_drawer(cube: np.ndarray, drawer: tuple[np.ndarray, np.ndarray]) -> bool:
     return all(lo <= v <= hi for v, (lo, hi) in zip(local, TRAY_INSIDE, strict=True))
 
 
+def _hand_clear(tcp: np.ndarray, drawer: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether the TCP ``tcp`` (world) is CLEAR or farther from the handle's centre, the
+    drawer's pose (p, q)."""
+    from envs.maniskill import lean
+
+    handle = drawer[0] + lean.quat_apply(drawer[1], HANDLE.astype(F32))
+    return bool(np.linalg.norm(tcp - handle) >= CLEAR)
+
+
 def _signals(opening: float, p: dict, grasped: dict[str, bool]) -> dict[str, bool]:
-    free = not grasped["drawer"]
+    """The subtask signals from the drawer's opening [m], world poses ``p`` (cubes' centres,
+    the drawer's (p, q), the TCP's position) and which objects the hand grasps. The drawer
+    signals need the hand let go of the handle and gone from it (CLEAR)."""
+    free = not grasped["drawer"] and _hand_clear(p["tcp"], p["drawer"])
     return {
         "drawer_open": opening >= OPEN and free,
         "grasp_cubeA": grasped["cubeA"],
@@ -135,6 +151,7 @@ def _opening(env) -> float:
 def signals(env, info: dict) -> dict[str, bool]:
     p = {o: getattr(env, o).pose.p.numpy()[0] for o in ("cubeA", "cubeB", "cubeC")}
     p["drawer"] = (env.drawer.pose.p.numpy()[0], env.drawer.pose.q.numpy()[0])
+    p["tcp"] = env.agent.tcp.pose.p.numpy()[0]
     grasped = {
         o: bool(env.agent.is_grasping(getattr(env, o))) for o in ("drawer", "cubeA", "cubeB")
     }
@@ -146,6 +163,7 @@ def evaluate(env) -> dict[str, bool]:
 
     p = {o: lean.pose(getattr(env, o))[0] for o in ("cubeA", "cubeB", "cubeC")}
     p["drawer"] = lean.pose(env.drawer)
+    p["tcp"] = lean.pose(env.agent.tcp)[0]
     grasped = {o: lean.is_grasping(env, getattr(env, o)) for o in ("drawer", "cubeA", "cubeB")}
     opening = _opening(env)
     out = _signals(opening, p, grasped)
