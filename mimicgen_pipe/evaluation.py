@@ -123,9 +123,14 @@ class ClosedLoopPolicy(Protocol):
 
 @dataclass(frozen=True)
 class Rollout:
+    """One episode: its reset seed, success, steps run, and, where asked for, the step at
+    which each subtask's term signal first held (-1: never; the last subtask, which ends
+    with the task, has none)."""
+
     seed: int
     success: bool
     steps: int
+    subtask_ends: tuple[int, ...] = ()
 
 
 def rollout(
@@ -136,22 +141,30 @@ def rollout(
     horizon: int,
     objects: Sequence[str],
     cameras: Any = None,
+    term_signals: Sequence[str] = (),
 ) -> Rollout:
     """One episode: reset the scene from ``seed``, act until the task succeeds or ``horizon``
     steps have run. ``cameras``: for a policy that reads images, a renderer of the env's
     state (mimicgen_pipe.video.make_renderer), whose images join the observation as
     ``<camera>_image``, the store's ``obs/<camera>_image`` (the same picture of the same
-    state as the observe stage takes)."""
+    state as the observe stage takes). ``term_signals``: subtask signals whose first step
+    (after that step's action) the rollout records, in its ``subtask_ends``."""
     env.reset(seed=seed, variant=variant)
     policy.reset(seed)
+    ends = [-1] * len(term_signals)
     for t in range(horizon):
         obs = low_dim_observation(env.eef_pose(), env.gripper_state(), env.object_poses(), objects)
         if cameras is not None:
             obs |= {f"{c}_image": im for c, im in cameras.images(env.get_state()).items()}
         env.step(policy.act(obs))
+        if term_signals:
+            held = env.subtask_signals()
+            ends = [
+                t + 1 if e < 0 and held[n] else e for e, n in zip(ends, term_signals, strict=True)
+            ]
         if env.is_success():
-            return Rollout(seed, True, t + 1)
-    return Rollout(seed, False, horizon)
+            return Rollout(seed, True, t + 1, tuple(ends))
+    return Rollout(seed, False, horizon, tuple(ends))
 
 
 @dataclass(frozen=True)

@@ -67,8 +67,14 @@ def test_evaluator_scores_replayed_demos_100_and_a_still_arm_0(pipeline, env):
     for ep in range(gen.n_episodes):
         steps = gen.episode(ep)
         policy = ReplayPolicy(steps["actions"])
-        r = rollout(env, policy, int(gen.episodes["seed"][ep]), "D1", spec.horizon, spec.objects)
+        grasp = spec.subtasks[0].term_signal
+        r = rollout(env, policy, int(gen.episodes["seed"][ep]), "D1", spec.horizon, spec.objects,
+                    term_signals=[grasp])  # fmt: skip
         assert r.success and r.steps <= len(steps["actions"]), ep
+        # the step after which the grasp first held: the generator's own record, in which
+        # step k holds the signal before action k
+        recorded = int(np.argmax(steps[f"subtask_signals/{grasp}"]))
+        assert recorded > 0 and abs(r.subtask_ends[0] - recorded) <= 2, (ep, r.subtask_ends)
         # the evaluator shows the policy the observations the generator recorded
         for key in ("eef_pos", "cubeA_pos", "gripper_qpos", "eef_to_cubeB_pos"):
             seen = np.stack([o[key] for o in policy.seen])

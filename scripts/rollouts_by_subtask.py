@@ -1,0 +1,91 @@
+"""How far a policy's rollouts get, subtask by subtask: one checkpoint rolled out on the
+evaluate stage's scenes (the same seeds, so the same scenes its success rate was measured
+on), each episode followed until its task succeeds or the horizon ends, and for each
+subtask the episodes whose term signal held at some step.
+
+    python scripts/rollouts_by_subtask.py --task drawer_cleanup --variant D0 \\
+        --policy data/policies/drawer_cleanup_D0/seed0/epoch00200.pt [--episodes 50] \\
+        [--backend maniskill] [--out rollouts.json]
+
+Prints one line per subtask (reached, and reached of those that reached the one before) and
+the success rate; ``--out`` writes the same and every episode's first step per subtask.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import envs
+from mimicgen_pipe.evaluation import EPISODES_PER_BLOCK, evaluation_seed, rollout
+from mimicgen_pipe.params import load_params
+from mimicgen_pipe.training import load_rollout_policy
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--policy", required=True, help="a checkpoint of the train stage (.pt)")
+    p.add_argument("--task", required=True)
+    p.add_argument("--variant", default="D0")
+    p.add_argument("--backend", default="maniskill")
+    p.add_argument("--episodes", type=int, default=None, help="default: evaluate.episodes")
+    p.add_argument("--params", default="params.yaml", help="for evaluate.seed and episodes")
+    p.add_argument("--out", type=Path, help="a JSON file for the counts and every episode")
+    args = p.parse_args()
+
+    import torch
+
+    torch.set_num_threads(1)  # as the evaluate stage's workers: the same actions
+    params = load_params(args.params)
+    episodes = args.episodes or params.evaluate.episodes
+    policy = load_rollout_policy(args.policy)
+    env = envs.make_env(args.backend, args.task)
+    spec = env.spec
+    names = [s.name for s in spec.subtasks]
+    signals = [s.term_signal for s in spec.subtasks[:-1]]
+    rollouts = []
+    try:
+        for i in range(episodes):
+            if i % EPISODES_PER_BLOCK == 0:  # the evaluate stage's blocks, on a rebuilt scene
+                env.rebuild()
+            seed = evaluation_seed(params.evaluate.seed, args.variant, i)
+            r = rollout(
+                env, policy, seed, args.variant, spec.horizon, spec.objects, term_signals=signals
+            )
+            rollouts.append(r)
+            print(f"episode {i}: success {r.success}, subtask ends {list(r.subtask_ends)}")
+    finally:
+        env.close()
+    # the last subtask is reached when the task succeeds
+    reached = [[*(e >= 0 for e in r.subtask_ends), r.success] for r in rollouts]
+    counts = dict(zip(names, (sum(r[k] for r in reached) for k in range(len(names))), strict=True))
+    print(f"\n{args.policy}: {episodes} episodes of {args.task} {args.variant}")
+    before = episodes
+    for k, name in enumerate(names):
+        both = sum(r[k] and (k == 0 or r[k - 1]) for r in reached)
+        print(f"  {name:24s} reached {counts[name]:3d} ({both} of the {before} before)")
+        before = counts[name]
+    print(f"  success rate {100 * counts[names[-1]] / episodes:.1f} %")
+    if args.out:
+        out = {
+            "policy": args.policy,
+            "task": args.task,
+            "variant": args.variant,
+            "episodes": episodes,
+            "reached": counts,
+            "rollouts": [
+                {
+                    "seed": r.seed,
+                    "success": r.success,
+                    "steps": r.steps,
+                    "subtask_ends": list(r.subtask_ends),
+                }
+                for r in rollouts
+            ],
+        }
+        args.out.write_text(json.dumps(out, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
