@@ -226,6 +226,21 @@ class PlannedTransitParams:
 
 
 @dataclass(frozen=True)
+class ScalingParams:
+    """Policies on more or fewer generated demos (suite/dvc.yaml; paper Fig. P.1, right): one
+    store of ``demos`` generated demos of ``task`` (a suite task) on ``variant`` (generated
+    until that many succeed, giving up after ``max_attempts``), and one policy on the first N
+    of them for each N of ``num_demos`` (each at most ``demos``), each evaluated on
+    ``variant``. task null: no comparison (suite/dvc.yaml's scaling stages need one)."""
+
+    task: str | None = None
+    variant: str = "D0"
+    demos: int = 5000
+    num_demos: list[int] = field(default_factory=lambda: [200, 1000, 5000])
+    max_attempts: int = 15_000
+
+
+@dataclass(frozen=True)
 class SuiteParams:
     """The task suite (suite/dvc.yaml): every task x variant generated from its own source
     demos, ``attempts`` fixed attempts each, on ``backend``, with action noise
@@ -236,7 +251,7 @@ class SuiteParams:
     the same source demos).
     policy_tasks: tasks with policies on D0 and D1 (source, D0 and D1 data; paper P.1);
     d0_policy_tasks: tasks with policies on D0 only (source and D0 data). Both among
-    ``tasks``, none in both."""
+    ``tasks``, none in both. scaling: the dataset-size comparison (ScalingParams)."""
 
     backend: str = "maniskill"
     tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
@@ -246,6 +261,7 @@ class SuiteParams:
     object_transfer: list[str] = field(default_factory=list)
     policy_tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
     d0_policy_tasks: list[str] = field(default_factory=list)
+    scaling: ScalingParams = field(default_factory=ScalingParams)
 
 
 @dataclass(frozen=True)
@@ -323,6 +339,9 @@ _RANGES: dict[str, tuple[float, float]] = {
     "planned_transit.attempts": (1, 10_000_000),
     "planned_transit.policy_demos": (1, 10_000_000),
     "suite.action_noise": (0.0, 1.0),
+    "suite.scaling.demos": (1, 10_000_000),
+    "suite.scaling.num_demos": (1, 10_000_000),  # each entry
+    "suite.scaling.max_attempts": (1, 10_000_000),
 }
 
 
@@ -378,6 +397,14 @@ def _selection(value: Any) -> str | None:
     return _one_of(choices("mimicgen_pipe.selection"), value)
 
 
+def _increasing(value: Any) -> str | None:
+    if not isinstance(value, list) or not all(type(v) is int for v in value):
+        return None  # the type check says what is wrong
+    if not value or any(b <= a for a, b in zip(value, value[1:], strict=False)):
+        return f"expected a non-empty list in increasing order, got {_short(value)}"
+    return None
+
+
 def _formats(value: Any) -> str | None:
     return _non_empty_unique(value) or _each_one_of(choices("mimicgen_pipe.exporters"), value)
 
@@ -405,6 +432,7 @@ _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "suite.policy_tasks": _non_empty_unique,
     "planned_transit.tasks": _non_empty_unique,
     "suite.variants": _non_empty_unique,
+    "suite.scaling.num_demos": _increasing,
 }
 
 

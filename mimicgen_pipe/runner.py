@@ -94,19 +94,24 @@ def with_generate_options(
     action_noise: float | None,
     transit: str | None = None,
     num_demos: int | None = None,
+    max_attempts: int | None = None,
 ) -> Params:
     """``params`` with the generate stage's options in place of the keys they stand for:
     ``attempts``, exactly that many attempts (generate.mode fixed_attempts, max_attempts);
     ``action_noise``, generate.action_noise; ``transit``, generate.transit; ``num_demos``,
-    until that many succeed (generate.mode guarantee, num_demos). Each is held to its key's
-    range: InputError naming the option otherwise."""
+    until that many succeed (generate.mode guarantee, num_demos); ``max_attempts``, the
+    cap of guarantee mode (generate.max_attempts). Each is held to its key's range:
+    InputError naming the option otherwise."""
     g = params.generate
     if attempts is not None and num_demos is not None:
         raise InputError("--attempts and --num-demos: one of them (fixed attempts or demos)")
+    if attempts is not None and max_attempts is not None:
+        raise InputError("--attempts and --max-attempts: one of them (--attempts is the count)")
     for flag, key, value in (
         ("--attempts", "generate.max_attempts", attempts),
         ("--action-noise", "generate.action_noise", action_noise),
         ("--num-demos", "generate.num_demos", num_demos),
+        ("--max-attempts", "generate.max_attempts", max_attempts),
     ):
         why = range_error(key, value) if value is not None else None
         if why:
@@ -119,6 +124,8 @@ def with_generate_options(
         g = dataclasses.replace(g, transit=transit)
     if num_demos is not None:
         g = dataclasses.replace(g, mode="guarantee", num_demos=num_demos)
+    if max_attempts is not None:
+        g = dataclasses.replace(g, max_attempts=max_attempts)
     return dataclasses.replace(params, generate=g)
 
 

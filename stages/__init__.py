@@ -32,9 +32,9 @@ def add_generated_arguments(p: argparse.ArgumentParser) -> None:
 
 def check_variants(params: Params, path: str) -> None:
     """InputError naming the params key when the main task (generate.variants), a
-    robot-transfer task (transfer.variants) or a suite task (suite.variants) lacks one of
-    the listed reset variants, or a suite task with policies is not a suite task or is
-    listed twice."""
+    robot-transfer task (transfer.variants), a suite task (suite.variants) or the scaling
+    task (suite.scaling.variant) lacks one of the listed reset variants, or a suite task with
+    policies or the scaling task is not a suite task (or, with policies, is listed twice)."""
     u = params.suite
     seen: set[str] = set()
     for key in ("suite.policy_tasks", "suite.d0_policy_tasks"):
@@ -43,11 +43,21 @@ def check_variants(params: Params, path: str) -> None:
                 why = "not in suite.tasks" if task not in u.tasks else "listed twice"
                 raise InputError(f"{path}: {key}: {task!r} is {why}")
             seen.add(task)
+    scaling = u.scaling
+    if scaling.task is not None and scaling.task not in u.tasks:
+        raise InputError(f"{path}: suite.scaling.task: {scaling.task!r} is not in suite.tasks")
+    if max(scaling.num_demos) > scaling.demos:
+        raise InputError(
+            f"{path}: suite.scaling.num_demos: {max(scaling.num_demos)} is more than the "
+            f"{scaling.demos} demos of suite.scaling.demos"
+        )
     t = params.transfer
     lists = [("generate.variants", params.backend, params.task, params.generate.variants)]
     lists += [("transfer.variants", t.backend, task, t.variants) for task in t.tasks]
     lists += [("suite.variants", u.backend, task, u.variants) for task in u.tasks]
     lists += [("suite.object_transfer", u.backend, task, ["O1"]) for task in u.object_transfer]
+    if scaling.task is not None:
+        lists += [("suite.scaling.variant", u.backend, scaling.task, [scaling.variant])]
     for key, backend, task, variants in lists:
         spec = envs.task_spec(backend, task)
         for v in variants:

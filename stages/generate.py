@@ -60,6 +60,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "generate.max_attempts), whatever generate.mode and num_demos say",
     )
     p.add_argument(
+        "--max-attempts",
+        type=int,
+        help="most attempts before guarantee mode gives up, in place of generate.max_attempts",
+    )
+    p.add_argument(
         "--transit",
         choices=TRANSITS,
         help="linear or planned transit, in place of generate.transit",
@@ -69,7 +74,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> None:
     # the options stand in for params keys, and are held to the same ranges
     params = with_generate_options(
-        stage_params(args), args.attempts, args.action_noise, args.transit, args.num_demos
+        stage_params(args),
+        args.attempts,
+        args.action_noise,
+        args.transit,
+        args.num_demos,
+        args.max_attempts,
     )
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)

@@ -19,6 +19,7 @@ from mimicgen_pipe.report import build_report, build_suite_report, build_transit
 from mimicgen_pipe.report.blocks import render_html, render_markdown
 from mimicgen_pipe.report.curves import FIGURES, draw_curves, read_curves
 from mimicgen_pipe.report.inputs import (
+    MetricsSet,
     link,
     read_heatmaps,
     read_media,
@@ -26,10 +27,11 @@ from mimicgen_pipe.report.inputs import (
     read_runs,
 )
 from mimicgen_pipe.report.paper import load_paper_results
+from mimicgen_pipe.report.scaling import DATASET_SIZE, SCALING, draw_dataset_size
 from mimicgen_pipe.report.summary import SUMMARY, headline_numbers
 from stages import add_selection_arguments, stage_params
 
-REPORT_FILES = ("report.md", "report.html", SUMMARY, *FIGURES)
+REPORT_FILES = ("report.md", "report.html", SUMMARY, *FIGURES, DATASET_SIZE)
 # what the stage writes; heat-map copies (coverage_*.png) in a report folder are replaced
 # with it, not refused
 REPORT_DIR = directory_kind(
@@ -97,7 +99,11 @@ def run(args: argparse.Namespace) -> None:
         u = params.suite
         specs = [envs.task_spec(u.backend, task) for task in u.tasks]
         ablations = {task: read_runs(ablations_dir / task) for task in u.tasks}
-        blocks = build_suite_report(params, specs, ms, ablations, paper)
+        scaling_dir = metrics_dir / SCALING
+        scaling = read_metrics_folder(scaling_dir) if scaling_dir.is_dir() else MetricsSet(())
+        figures = draw_dataset_size(params, scaling)
+        images = dict(figures)
+        blocks = build_suite_report(params, specs, ms, ablations, paper, scaling, figures)
         title, runs = "MimicGen task suite", sum(len(r) for r in ablations.values())
     else:
         variants = params.generate.variants

@@ -34,8 +34,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--num-demos",
         type=int,
+        nargs="+",
         help="generated demos each policy trains on (the first N kept), in place of "
-        "train.num_demos",
+        "train.num_demos: one for every --data, or one per --data",
     )
     p.add_argument(
         "--store",
@@ -77,6 +78,7 @@ class PolicyToTrain:
     out: Path
     metrics: Path
     plot: Path
+    num_demos: int  # the first N kept demos of a generated store (not used for "source")
 
 
 def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
@@ -84,6 +86,15 @@ def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
     data: list[str] = args.data
     if len(set(data)) != len(data):
         raise InputError(f"--data {' '.join(data)}: each dataset at most once")
+    num_demos = args.num_demos or [params.train.num_demos]
+    for n in num_demos:  # each stands in for train.num_demos, held to its range
+        if why := range_error("train.num_demos", n):
+            raise InputError(f"--num-demos {n}: {why}")
+    if len(num_demos) not in (1, len(data)):
+        raise InputError(
+            f"--num-demos: expected one count, or one per --data ({len(data)}), "
+            f"got {len(num_demos)}"
+        )
     for key in ("store", "out", "metrics", "plot"):
         given = getattr(args, key)
         if given is not None and len(given) != len(data):
@@ -105,6 +116,7 @@ def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
             Path(args.out[i] if args.out else layout.policy_dir(t, d)),
             Path(args.metrics[i] if args.metrics else layout.metrics_file("train", t, d)),
             Path(args.plot[i] if args.plot else layout.plot_file("train", t, d)),
+            num_demos[i if len(num_demos) > 1 else 0],
         )
         for i, d in enumerate(data)
     ]
@@ -112,12 +124,6 @@ def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
 
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
-    if args.num_demos is not None:  # stands in for train.num_demos, held to its range
-        if why := range_error("train.num_demos", args.num_demos):
-            raise InputError(f"--num-demos {args.num_demos}: {why}")
-        params = dataclasses.replace(
-            params, train=dataclasses.replace(params.train, num_demos=args.num_demos)
-        )
     t, prof = params.train, params.train.active
     if not prof.seeds:
         raise InputError(f"{args.params}: train.{t.profile}.seeds: expected at least one seed")
@@ -128,7 +134,14 @@ def run(args: argparse.Namespace) -> None:
         inputs=[p.store for p in todo],
     )
     # only the arrays and episodes the trainings use are read, each store checked first
-    trainings = [policy_training(params, p.data, p.store) for p in todo]
+    trainings = [
+        policy_training(
+            dataclasses.replace(params, train=dataclasses.replace(t, num_demos=p.num_demos)),
+            p.data,
+            p.store,
+        )
+        for p in todo
+    ]
     side_by_side = min(t.workers, len(todo) * len(prof.seeds))
     # every policy's checkpoints, curve and metrics are written aside and renamed together
     # when all have trained, checkpoints last

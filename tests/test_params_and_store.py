@@ -37,7 +37,8 @@ def test_defaults_are_the_papers():
         ("generate: {n_interp: 2.5}", "generate.n_interp: expected an integer"),
         (
             "generate: {selection: nn}",
-            "generate.selection: expected one of 'nearest_neighbor', 'random', got 'nn'",
+            "generate.selection: expected one of 'nearest_neighbor', "
+            "'nearest_neighbor_robot_distance', 'random', got 'nn'",
         ),
         (
             "backend: bullet\nsource: {}",
@@ -55,11 +56,38 @@ def test_defaults_are_the_papers():
         ("generate: {nosie: 0.1}", "generate.nosie: unknown key"),
         ("generate: {action_noise: -0.1}", "generate.action_noise: expected a value in"),
         ("source: [1, 2]", "source: expected a mapping"),
+        (
+            "suite: {scaling: {num_demos: [1000, 200]}}",
+            "suite.scaling.num_demos: expected a non-empty list in increasing order",
+        ),
+        ("suite: {scaling: {num_demos: [0, 5]}}", "suite.scaling.num_demos: expected each entry"),
+        ("suite: {scaling: {num_demos: 200}}", "suite.scaling.num_demos: expected a list of"),
     ],
 )
 def test_bad_params_name_the_key(tmp_path, text, needle):
     with pytest.raises(InputError, match=needle.replace("(", r"\(")):
         load_params(write(tmp_path, text))
+
+
+@pytest.mark.parametrize(
+    "scaling,needle",
+    [
+        ("{task: stack_pyramid}", "suite.scaling.task: 'stack_pyramid' is not in suite.tasks"),
+        (
+            "{task: place_sphere, demos: 500, num_demos: [200, 1000]}",
+            "suite.scaling.num_demos: 1000 is more than the 500 demos of suite.scaling.demos",
+        ),
+        ("{task: place_sphere, variant: D7}", "suite.scaling.variant: 'D7' is not a reset"),
+    ],
+)
+def test_the_scaling_task_is_a_suite_task_with_its_demos(tmp_path, scaling, needle):
+    from stages import check_variants
+
+    suite = "suite: {tasks: [place_sphere], policy_tasks: [place_sphere], scaling: "
+    with pytest.raises(InputError, match=needle):
+        check_variants(load_params(write(tmp_path, suite + scaling + "}")), "params.yaml")
+    ok = suite + "{task: place_sphere, variant: D1}}"
+    check_variants(load_params(write(tmp_path, ok)), "params.yaml")
 
 
 # every seed: generation and evaluation derive reset seeds from theirs with SeedSequence,

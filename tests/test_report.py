@@ -22,6 +22,7 @@ from mimicgen_pipe.report.blocks import Heading, Image, Table, Text, render_html
 from mimicgen_pipe.report.curves import draw_curves, read_curves
 from mimicgen_pipe.report.inputs import MetricsSet, Run, read_metrics_folder
 from mimicgen_pipe.report.paper import PaperResults, load_paper_results
+from mimicgen_pipe.report.scaling import draw_dataset_size, scaling_blocks
 from mimicgen_pipe.report.suite import suite_dgr_blocks, suite_policy_blocks
 from mimicgen_pipe.report.summary import headline_numbers
 from mimicgen_pipe.report.transfer import transfer_table
@@ -460,7 +461,9 @@ def test_figures_are_pngs_of_fixed_bytes(tmp_path):
 
 def suite_params(tasks: list[str]) -> Params:
     p = Params()
-    return replace(p, suite=replace(p.suite, tasks=tasks, object_transfer=["peg_insertion"]))
+    scaling = replace(p.suite.scaling, task="peg_insertion")
+    suite = replace(p.suite, tasks=tasks, object_transfer=["peg_insertion"], scaling=scaling)
+    return replace(p, suite=suite)
 
 
 def test_the_suite_report_has_the_suite_sections_only():
@@ -476,7 +479,9 @@ def test_the_suite_report_has_the_suite_sections_only():
         gen("stack_cube", "D0", 96.2, attempts=1039),  # the main task's: not in this report
     )  # fmt: skip
     paper = load_paper_results(PAPER)
-    blocks = build_suite_report(suite_params(tasks), specs, MetricsSet(files), {}, paper)
+    blocks = build_suite_report(
+        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}
+    )
     headings = [b.text for b in blocks if isinstance(b, Heading)]
     assert headings == [
         "MimicGen task suite: our numbers and the paper's",
@@ -493,10 +498,50 @@ def test_the_suite_report_has_the_suite_sections_only():
     assert "†" not in md
     # the policy data generated again since the policy was trained: its row is marked
     files = (*files[:2], gen("peg_insertion", "D0", 50.0, attempts=2000, run_id="u"), *files[3:])
-    blocks = build_suite_report(suite_params(tasks), specs, MetricsSet(files), {}, paper)
+    blocks = build_suite_report(
+        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}
+    )
     md = render_markdown(blocks)
     assert rows_of(md, "| peg_insertion (D0) | Square | missing | 62.0 / 54.0 † | missing |")
     assert "† measured on the data of another generate run" in md
+
+
+def scaling_metrics(run_id: str = "s") -> tuple[Metrics, ...]:
+    """The dataset-size comparison's metrics folder: its store, and the policies on 200 and
+    1000 of its demos trained and evaluated (5000 not yet)."""
+    store = gen("peg_insertion", "D0", 56.0, attempts=8929, run_id=run_id)
+    out = [store]
+    for n, (best, last, std) in ((200, (20.0, 14.0, 2.0)), (1000, (62.0, 54.0, 0.0))):
+        d = f"D0_n{n}"
+        out.append(m("train", "peg_insertion", data=d, data_run_id="s",
+                     train_episodes=n - n // 10, val_episodes=n // 10))  # fmt: skip
+        out.append(m("evaluate", "peg_insertion", "D0", data=d, data_run_id="s", seeds=1,
+                     success_rate_max=best, success_rate_last=last, success_rate_max_std=std,
+                     success_rate_last_std=std))  # fmt: skip
+    return tuple(out)
+
+
+def test_the_dataset_size_comparison_has_a_row_per_size_and_its_figure():
+    """One row per N of suite.scaling.num_demos (missing where not measured), the store the
+    policies drew from, the figure of the evaluated sizes; a policy on another run's data is
+    marked; no metrics, no section."""
+    params = suite_params(["peg_insertion"])
+    ms = MetricsSet(scaling_metrics())
+    figures = draw_dataset_size(params, ms)
+    assert list(figures) == ["dataset_size.png"]
+    png = figures["dataset_size.png"]
+    assert png.startswith(b"\x89PNG\r\n\x1a\n") and draw_dataset_size(params, ms) == figures
+    md = render_markdown(scaling_blocks(params, ms, figures))
+    assert "the first N of 5000 demos kept of 8929 attempts (DGR 56.0 %)" in md
+    assert rows_of(md, "| 200 | 180 / 20 | 20.0 ± 2.0 | 14.0 ± 2.0 | 1 |")
+    assert rows_of(md, "| 1000 | 900 / 100 | 62.0 ± 0.0 | 54.0 ± 0.0 | 1 |")
+    assert rows_of(md, "| 5000 | missing | missing | missing | missing |")
+    assert "![success rate by dataset size](dataset_size.png)" in md and "†" not in md
+    # the store generated again since: the policies measured another run's data
+    md = render_markdown(scaling_blocks(params, MetricsSet(scaling_metrics("t")), figures))
+    assert rows_of(md, "| 200 | 180 / 20 | 20.0 ± 2.0 † |")
+    assert scaling_blocks(params, MetricsSet(()), {}) == []
+    assert draw_dataset_size(params, MetricsSet(())) == {}
 
 
 def test_the_suite_table_states_the_action_noise_each_task_ran_with():

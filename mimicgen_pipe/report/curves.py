@@ -112,7 +112,7 @@ def read_curves(
 
 
 @contextlib.contextmanager
-def _figure(out: io.BytesIO, title: str, panels: int) -> Iterator[list[Axes]]:
+def figure(out: io.BytesIO, title: str, panels: int) -> Iterator[list[Axes]]:
     """``panels`` axes to draw on, PANELS_PER_ROW to a row; when the block ends, the figure
     is written to ``out`` as PNG."""
     with quiet_matplotlib_import():
@@ -145,7 +145,7 @@ def draw_curves(task: str, training: Sequence[Curve], success: Sequence[Curve]) 
     figures = {}
     if training:
         out = io.BytesIO()
-        with _figure(out, f"{task}: training curves", len(training)) as axes:
+        with figure(out, f"{task}: training curves", len(training)) as axes:
             for ax, c in zip(axes, training, strict=True):
                 ax.plot(c.epochs, c.columns["loss"], label="loss")
                 ax.plot(c.epochs, c.columns["val_loss"], linestyle="--", label="val_loss")
@@ -155,7 +155,7 @@ def draw_curves(task: str, training: Sequence[Curve], success: Sequence[Curve]) 
         figures[TRAINING_CURVES] = out.getvalue()
     if success:
         out = io.BytesIO()
-        with _figure(out, f"{task}: success rate per checkpoint", 1) as (ax,):
+        with figure(out, f"{task}: success rate per checkpoint", 1) as (ax,):
             for c, marker in zip(success, itertools.cycle("os^Dv"), strict=False):
                 ax.plot(c.epochs, c.columns["success_rate"], marker=marker,
                         label=f"{c.label}{_seeds(c)}")  # fmt: skip
