@@ -124,8 +124,9 @@ class ClosedLoopPolicy(Protocol):
 @dataclass(frozen=True)
 class Rollout:
     """One episode: its reset seed, success, steps run, and, where asked for, the step at
-    which each subtask's term signal first held (-1: never; the last subtask, which ends
-    with the task, has none)."""
+    which each subtask ended, as parse finds subtask ends in a demo: the first rise of its term
+    signal after the subtask before it ended (-1: never; the last subtask, which ends with the
+    task, has none). Step t is the state after t actions."""
 
     seed: int
     success: bool
@@ -147,24 +148,29 @@ def rollout(
     steps have run. ``cameras``: for a policy that reads images, a renderer of the env's
     state (mimicgen_pipe.video.make_renderer), whose images join the observation as
     ``<camera>_image``, the store's ``obs/<camera>_image`` (the same picture of the same
-    state as the observe stage takes). ``term_signals``: subtask signals whose first step
-    (after that step's action) the rollout records, in its ``subtask_ends``."""
+    state as the observe stage takes). ``term_signals``: the term signals of the subtasks
+    but the last, in order, whose ends the rollout records in its ``subtask_ends``."""
     env.reset(seed=seed, variant=variant)
     policy.reset(seed)
-    ends = [-1] * len(term_signals)
+    ends: list[int] = []
+    before = env.subtask_signals() if term_signals else {}
     for t in range(horizon):
         obs = low_dim_observation(env.eef_pose(), env.gripper_state(), env.object_poses(), objects)
         if cameras is not None:
             obs |= {f"{c}_image": im for c, im in cameras.images(env.get_state()).items()}
         env.step(policy.act(obs))
-        if term_signals:
-            held = env.subtask_signals()
-            ends = [
-                t + 1 if e < 0 and held[n] else e for e, n in zip(ends, term_signals, strict=True)
-            ]
+        if len(ends) < len(term_signals):  # one subtask at most ends at a step
+            held, name = env.subtask_signals(), term_signals[len(ends)]
+            if held[name] and not before[name]:
+                ends.append(t + 1)
+            before = held
         if env.is_success():
-            return Rollout(seed, True, t + 1, tuple(ends))
-    return Rollout(seed, False, horizon, tuple(ends))
+            return Rollout(seed, True, t + 1, _padded(ends, term_signals))
+    return Rollout(seed, False, horizon, _padded(ends, term_signals))
+
+
+def _padded(ends: list[int], term_signals: Sequence[str]) -> tuple[int, ...]:
+    return (*ends, *[-1] * (len(term_signals) - len(ends)))
 
 
 @dataclass(frozen=True)
