@@ -11,6 +11,7 @@ from mimicgen_pipe import layout
 from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.metrics import GENERATE_PURPOSE, metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set, store_kind
+from mimicgen_pipe.params import Params
 from mimicgen_pipe.runner import (
     AttemptSeeds,
     attempt_job,
@@ -71,16 +72,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def generate_params(args: argparse.Namespace) -> Params:
+    """params.yaml with the command line's options in place of the keys they stand for, each
+    held to its key's range."""
+    options = (args.attempts, args.action_noise, args.transit, args.num_demos, args.max_attempts)
+    return with_generate_options(stage_params(args), *options)
+
+
 def run(args: argparse.Namespace) -> None:
-    # the options stand in for params keys, and are held to the same ranges
-    params = with_generate_options(
-        stage_params(args),
-        args.attempts,
-        args.action_noise,
-        args.transit,
-        args.num_demos,
-        args.max_attempts,
-    )
+    params = generate_params(args)
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
     params, note = capped_action_noise(params, spec)

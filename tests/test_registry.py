@@ -56,7 +56,9 @@ def test_load_of_an_unknown_name_is_one_error_naming_the_choices(probe_package, 
 
 
 def test_the_project_registries():
-    assert choices("mimicgen_pipe.selection") == ("nearest_neighbor", "random")
+    assert choices("mimicgen_pipe.selection") == (
+        "nearest_neighbor", "nearest_neighbor_robot_distance", "random"
+    )  # fmt: skip
     assert choices("mimicgen_pipe.executors") == ("local", "ray")
     assert choices("mimicgen_pipe.exporters") == ("lerobot", "maniskill", "robomimic")
     assert choices("envs") == ("maniskill", "pybullet")
