@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.test_output_safety import tree_digest
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -46,8 +48,24 @@ def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(tmp_path):
     q = work / "quickstart"
     ran = json.loads((q / "metrics/generate_stack_cube_D0.json").read_text())
     committed = json.loads((REPO / "quickstart/metrics/generate_stack_cube_D0.json").read_text())
-    for key in ("attempts", "successes", "dgr", "run_id"):  # generation is bit-reproducible
+    # the same attempts succeed as in the committed run; its run id (a digest of the parsed
+    # store's bytes) is not compared: ManiSkill's motion planner and converter give source
+    # demos that differ in their last bits between CPU types (docs/results.md)
+    for key in ("attempts", "successes", "dgr"):
         assert ran[key] == committed[key], key
+    # bit for bit on this machine: the same run on one worker gives the same stores and id
+    one = work / "one.yaml"
+    one.write_text((q / "params.yaml").read_text().replace("workers: 2", "workers: 1"))
+    again = tmp_path / "again/stack_cube_D0.zarr"
+    cmd = ["mimicgen-pipe", "generate", "--params", str(one), "--variant", "D0",
+           "--parsed", "quickstart/data/parsed/stack_cube.zarr", "--out", str(again),
+           "--metrics", str(tmp_path / "again.json")]  # fmt: skip
+    res = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert json.loads((tmp_path / "again.json").read_text())["run_id"] == ran["run_id"]
+    for name in ("stack_cube_D0.zarr", "stack_cube_D0_failed.zarr"):
+        kept = q / "data/generated" / name
+        assert tree_digest(again.parent / name) == tree_digest(kept), name
     summary = json.loads((q / "report/summary.json").read_text())
     assert summary["dgr_D0"] == round(ran["dgr"], 1)
     assert "DGR" in (q / "report/report.html").read_text()
