@@ -176,7 +176,8 @@ def _padded(ends: list[int], term_signals: Sequence[str]) -> tuple[int, ...]:
 @dataclass(frozen=True)
 class EvalJob:
     """Everything a worker needs: how to make its env and to load a policy by name; for a
-    policy that reads images, how to make its cameras' renderer (see :func:`rollout`)."""
+    policy that reads images, how to make its cameras' renderer; the term signals whose
+    subtask ends each rollout records (see :func:`rollout`)."""
 
     make_env: Callable[[], Env]
     load_policy: Callable[[str], ClosedLoopPolicy]
@@ -184,6 +185,7 @@ class EvalJob:
     horizon: int
     objects: tuple[str, ...]
     make_cameras: Callable[[], Any] | None = None
+    term_signals: tuple[str, ...] = ()
 
 
 @dataclass
@@ -229,7 +231,8 @@ def _run_block(task: tuple[str, list[int]]) -> tuple[str, list[Rollout]]:
     policy = _WORKER.load(name)
     env.rebuild()
     return name, [
-        rollout(env, policy, s, job.variant, job.horizon, job.objects, cameras) for s in seeds
+        rollout(env, policy, s, job.variant, job.horizon, job.objects, cameras, job.term_signals)
+        for s in seeds
     ]
 
 

@@ -1,24 +1,26 @@
-"""How far a policy's rollouts get, subtask by subtask: one checkpoint rolled out on the
-evaluate stage's scenes (the same seeds, so the same scenes its success rate was measured
-on), each episode followed until its task succeeds or the horizon ends, and for each
-subtask the episodes whose term signal held at some step.
+"""How far a policy's rollouts get, subtask by subtask: one checkpoint rolled out as the
+evaluate stage rolls it out (its scenes, blocks and workers, so its success rate is the
+stage's), and for each subtask the episodes that ended it (its term signal's first rise
+after the subtask before it ended, as parse finds subtask ends in a demo).
 
     python scripts/rollouts_by_subtask.py --task drawer_cleanup --variant D0 \\
         --policy data/policies/drawer_cleanup_D0/seed0/epoch00200.pt [--episodes 50] \\
         [--backend maniskill] [--out rollouts.json]
 
-Prints one line per subtask (reached, and reached of those that reached the one before) and
-the success rate; ``--out`` writes the same and every episode's first step per subtask.
+Prints one line per subtask (episodes that ended it, and of those that ended the one before)
+and the success rate; ``--out`` writes the same and the step each episode ended each subtask.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 from pathlib import Path
 
 import envs
-from mimicgen_pipe.evaluation import EPISODES_PER_BLOCK, evaluation_seed, rollout
+from mimicgen_pipe.evaluation import EvalJob, evaluate_policies, evaluation_seed
+from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.params import load_params
 from mimicgen_pipe.training import load_rollout_policy
 
@@ -34,29 +36,24 @@ def main() -> None:
     p.add_argument("--out", type=Path, help="a JSON file for the counts and every episode")
     args = p.parse_args()
 
-    import torch
-
-    torch.set_num_threads(1)  # as the evaluate stage's workers: the same actions
     params = load_params(args.params)
     episodes = args.episodes or params.evaluate.episodes
-    policy = load_rollout_policy(args.policy)
-    env = envs.make_env(args.backend, args.task)
-    spec = env.spec
+    spec = envs.task_spec(args.backend, args.task)
     names = [s.name for s in spec.subtasks]
-    signals = [s.term_signal for s in spec.subtasks[:-1]]
-    rollouts = []
-    try:
-        for i in range(episodes):
-            if i % EPISODES_PER_BLOCK == 0:  # the evaluate stage's blocks, on a rebuilt scene
-                env.rebuild()
-            seed = evaluation_seed(params.evaluate.seed, args.variant, i)
-            r = rollout(
-                env, policy, seed, args.variant, spec.horizon, spec.objects, term_signals=signals
-            )
-            rollouts.append(r)
-            print(f"episode {i}: success {r.success}, subtask ends {list(r.subtask_ends)}")
-    finally:
-        env.close()
+    job = EvalJob(
+        make_env=functools.partial(
+            envs.make_env, args.backend, args.task, "panda", params.maniskill.lean_step
+        ),
+        load_policy=load_rollout_policy,
+        variant=args.variant,
+        horizon=spec.horizon,
+        objects=spec.objects,
+        term_signals=tuple(str(s.term_signal) for s in spec.subtasks[:-1]),
+    )
+    seeds = [evaluation_seed(params.evaluate.seed, args.variant, i) for i in range(episodes)]
+    executor = stage_executor(params, "evaluate")
+    label = f"rollouts {args.task} {args.variant}"
+    rollouts = evaluate_policies(job, [args.policy], seeds, executor, label)[0][args.policy]
     # the last subtask is reached when the task succeeds
     reached = [[*(e >= 0 for e in r.subtask_ends), r.success] for r in rollouts]
     counts = dict(zip(names, (sum(r[k] for r in reached) for k in range(len(names))), strict=True))

@@ -36,9 +36,9 @@ def scaling_runs(
     """(N, train metrics, evaluate metrics) for each N of suite.scaling.num_demos, from the
     comparison's metrics folder ``ms``; None where absent."""
     s, backend = params.suite.scaling, params.suite.backend
-    out = []
     if s.task is None:
-        return out
+        return []
+    out = []
     for n in s.num_demos:
         data = data_name(s.variant, n)
         train = ms.one(stage="train", task=s.task, backend=backend, data=data)
@@ -127,7 +127,7 @@ def scaling_blocks(params: Params, ms: MetricsSet, figures: dict[str, bytes]) ->
                 "seeds",
             ),
             tuple(rows),
-        ),  # fmt: skip
+        ),
     ]
     if marked:
         blocks.append(Text(other_run_note("train or evaluate")))
