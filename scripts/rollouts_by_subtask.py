@@ -35,6 +35,8 @@ def main() -> None:
     p.add_argument("--params", default="params.yaml", help="for evaluate.seed and episodes")
     p.add_argument("--out", type=Path, help="a JSON file for the counts and every episode")
     args = p.parse_args()
+    if args.out is not None and args.out.exists():  # before any work; nothing is replaced
+        p.error(f"--out {args.out}: already exists; remove it or name another file")
 
     params = load_params(args.params)
     episodes = args.episodes or params.evaluate.episodes
