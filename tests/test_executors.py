@@ -127,8 +127,33 @@ def test_the_code_digest_follows_the_source(tmp_path, monkeypatch):
 
 
 def test_a_workers_exception_reaches_the_driver():
-    with pytest.raises(ZeroDivisionError):
+    with pytest.raises(ZeroDivisionError) as raised:
         list(map_blocks(_divide, [1, 0], Executor("local", 2), _noop))
+    assert "in _divide" in str(raised.value.__cause__)  # the worker's traceback, as text
+
+
+def _kill_self_on_three(x: int) -> int:
+    if x == 3:
+        os.kill(os.getpid(), signal.SIGKILL)  # as the kernel's OOM killer would
+    return x
+
+
+def test_a_worker_that_dies_is_an_error_naming_it_not_a_wait():
+    from mimicgen_pipe.executors.local import WorkerDied
+
+    with pytest.raises(WorkerDied, match=r"exit code -9 while running a block"):
+        list(map_blocks(_kill_self_on_three, range(8), Executor("local", 2), _noop))
+
+
+def _failing_init() -> None:
+    raise FileNotFoundError("no scene here")
+
+
+def test_an_initializer_that_raises_is_raised_once_not_retried():
+    t0 = time.monotonic()
+    with pytest.raises(FileNotFoundError, match="no scene here"):
+        list(map_blocks(_square, range(8), Executor("local", 2), _failing_init))
+    assert time.monotonic() - t0 < 60
 
 
 def _divide(x: int) -> float:

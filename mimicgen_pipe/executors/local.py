@@ -1,15 +1,21 @@
-"""The ``local`` executor: a pool of simulator processes that never outlives the stage that
-started it.
+"""The ``local`` executor: simulator processes that never outlive the stage that started
+them.
 
-The pool here adds what a plain ``multiprocessing.Pool`` lacks for a command a person stops
-with Ctrl-C or a scheduler stops with SIGTERM or SIGKILL:
+Each worker is a spawned process with a pipe of its own and holds one block at a time: its
+result is read before it gets the next, so no pipe ever fills, nothing is queued ahead (a
+run may allow millions of blocks; tasks are read one per result taken), and no lock or
+helper thread is shared between processes, so stopping never waits on one. What the pool
+adds for a command a person stops with Ctrl-C or a scheduler stops with SIGTERM or SIGKILL:
 
 - workers ignore SIGINT: a Ctrl-C in a terminal signals the whole process group, and the
   parent alone decides what to do (tear the pool down, print one line);
 - workers die with their parent: on Linux the kernel sends them SIGKILL when it dies
   (``PR_SET_PDEATHSIG``); elsewhere a thread polls the parent's pid;
 - leaving the iterator early, by an exception or by closing it, terminates the workers
-  (SIGTERM, which they do not catch) and joins them, so that they write nothing more.
+  (SIGTERM, which they do not catch) and joins them, so that they write nothing more;
+- a worker that dies (killed, out of memory, a crash inside the simulator) is an error in
+  the parent naming it and its exit code, never a wait without end; an exception in a
+  worker (its initializer's included) is raised in the parent with the worker's traceback.
 """
 
 from __future__ import annotations
@@ -19,11 +25,15 @@ import ctypes
 import itertools
 import multiprocessing as mp
 import os
+import pickle
 import signal
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Callable, Iterable, Iterator
+from multiprocessing.connection import Connection, wait
+from multiprocessing.process import BaseProcess
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -31,6 +41,15 @@ R = TypeVar("R")
 
 _PR_SET_PDEATHSIG = 1
 PARENT_POLL_SECONDS = 0.5
+
+
+class WorkerDied(RuntimeError):
+    """A worker process ended while it held a block."""
+
+
+class _RemoteTraceback(Exception):
+    def __str__(self) -> str:
+        return f"\n\n(in the worker process)\n{self.args[0]}"
 
 
 def _die_with_parent(parent: int) -> None:
@@ -51,15 +70,39 @@ def _die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
-def _init(parent: int, initializer: Callable[..., None], initargs: tuple) -> None:
+def _portable(error: BaseException) -> tuple[BaseException, str]:
+    """The error and its traceback as text; the error itself when it pickles (so that the
+    parent raises the same type), else a RuntimeError saying what it was."""
+    text = "".join(traceback.format_exception(error))
+    try:
+        pickle.dumps(error)
+    except Exception:  # noqa: BLE001 - whatever stops it crossing the pipe
+        error = RuntimeError(f"{type(error).__name__}: {error}")
+    return error, text
+
+
+def _worker(
+    conn: Connection, parent: int, initializer: Callable[..., None], initargs: tuple
+) -> None:
+    """Run the blocks sent on ``conn`` until it closes, answering each with (index, result,
+    None) or (index, None, error)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _die_with_parent(parent)
-    initializer(*initargs)
-
-
-def _indexed(item: tuple[Callable[[T], R], int, T]) -> tuple[int, R]:
-    fn, i, task = item
-    return i, fn(task)
+    try:
+        initializer(*initargs)
+    except BaseException as error:  # noqa: BLE001 - the parent raises it
+        conn.send((None, None, _portable(error)))
+        return
+    while True:
+        try:
+            fn, i, task = conn.recv()
+        except EOFError:
+            return
+        try:
+            answer = (i, fn(task), None)
+        except BaseException as error:  # noqa: BLE001 - the parent raises it
+            answer = (i, None, _portable(error))
+        conn.send(answer)
 
 
 def check_settings(address: str | None) -> None:
@@ -77,9 +120,9 @@ def imap_unordered(
     """(index, ``fn(task)``) for each (index, task), as they finish: in this process, in
     order, when ``workers`` <= 1 (after ``initializer(*initargs)``), else on that many
     spawned processes, each initialised once. Close the iterator (or let an exception
-    through it) to stop early: the pool is gone when that returns. ``address`` is unused (a
-    Ray cluster's, for the ray executor)."""
-    tasks = iter(tasks)  # read as the pool asks for them: ``tasks`` may be long and lazy
+    through it) to stop early: the workers are gone when that returns. ``address`` is unused
+    (a Ray cluster's, for the ray executor)."""
+    tasks = iter(tasks)  # read one per result taken: ``tasks`` may be long and lazy
     first = list(itertools.islice(tasks, max(1, workers)))  # no more processes than tasks
     if not first:
         return
@@ -89,22 +132,60 @@ def imap_unordered(
             yield i, fn(task)
         return
     # Workers inherit a signal mask that blocks SIGINT: it would otherwise reach a worker
-    # still importing its modules, before _init ignores it (a traceback). A Ctrl-C meanwhile
-    # stays pending here and is raised, inside the try, when the mask is restored. (A worker
-    # that a SIGTERM here orphans finds its parent gone in _init, and exits.)
+    # still importing its modules, before _worker ignores it (a traceback). A Ctrl-C
+    # meanwhile stays pending here and is raised, inside the try, when the mask is restored.
+    # (A worker that a SIGTERM here orphans finds its parent gone in _worker, and exits.)
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGINT])
-    pool = None
+    procs: dict[Any, BaseProcess] = {}  # each worker's end of the pipe here -> its process
     try:
-        pool = mp.get_context("spawn").Pool(
-            len(first),
-            initializer=_init,
-            initargs=(os.getpid(), initializer, initargs),
-        )
+        spawn = mp.get_context("spawn")
+        for _ in first:
+            here, there = spawn.Pipe()
+            proc = spawn.Process(
+                target=_worker, args=(there, os.getpid(), initializer, initargs), daemon=True
+            )
+            proc.start()
+            there.close()
+            procs[here] = proc
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-        items = ((fn, i, t) for i, t in itertools.chain(first, tasks))
-        yield from pool.imap_unordered(_indexed, items, chunksize=1)
+        pending = itertools.chain(first, tasks)
+        busy = {conn for conn in procs if _hand(conn, fn, pending)}
+        while busy:
+            # a timeout, so that a Ctrl-C is raised while the blocks run
+            for conn in wait(list(busy), timeout=PARENT_POLL_SECONDS):
+                i, result, error = _receive(conn, procs[conn])
+                if error is not None:
+                    raise error[0] from _RemoteTraceback(error[1])
+                if not _hand(conn, fn, pending):
+                    busy.discard(conn)
+                yield i, result
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-        if pool is not None:
-            pool.terminate()
-            pool.join()
+        for proc in procs.values():
+            if proc.exitcode is None:
+                proc.terminate()
+        for conn, proc in procs.items():
+            proc.join()
+            conn.close()
+
+
+def _hand(conn: Any, fn: Callable[[T], R], pending: Iterator[tuple[int, T]]) -> bool:
+    """Send the next block to a worker holding none; False when there is none left."""
+    item = next(pending, None)
+    if item is None:
+        return False
+    conn.send((fn, *item))
+    return True
+
+
+def _receive(conn: Any, proc: BaseProcess) -> tuple[Any, Any, Any]:
+    """A worker's answer, or WorkerDied when its pipe closed without one."""
+    try:
+        return conn.recv()
+    except EOFError:
+        proc.join()
+        raise WorkerDied(
+            f"local executor: worker process {proc.pid} ended with exit code "
+            f"{proc.exitcode} while running a block (killed, out of memory, or a crash in "
+            "the simulator)"
+        ) from None
