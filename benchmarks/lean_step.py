@@ -1,6 +1,6 @@
 """ManiSkill's stock step vs the lean step (maniskill.lean_step), StackCube, one process, one
 run: ms per control step, seconds per generation attempt, the physics floor, the generator's
-overhead, and seconds per policy-evaluation episode.
+overhead, and seconds per policy-evaluation episode; written to benchmarks/lean_step.json.
 
     python benchmarks/lean_step.py [--attempts 48] [--variant D0]
         [--policy data/policies/stack_cube_D0/seed0/epoch00200.pt] [--episodes 10]
@@ -15,10 +15,12 @@ timed inside the lean step while it steps the attempts' actions again.
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
 import numpy as np
+from _machine import machine
 
 import envs
 from mimicgen_pipe.evaluation import evaluation_seed, rollout
@@ -27,7 +29,10 @@ from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 from mimicgen_pipe.store import read_store
 
 TASK = "stack_cube"
-MIMICGEN_S_PER_ATTEMPT = (2.0, 2.3)  # the official MimicGen code, Stack D0, run on this machine
+# the official MimicGen code's s per Stack D0 attempt, measured once on an earlier 2-core
+# machine: not side by side with a run of this script, so its ratio is approximate
+MIMICGEN_S_PER_ATTEMPT = (2.0, 2.3)
+OUT = Path(__file__).with_suffix(".json")
 
 
 class Timed:
@@ -98,6 +103,10 @@ def main() -> None:
     seeds = [attempt_seed(0, args.variant, i) for i in range(args.attempts)]
     seconds = dict.fromkeys(paths, 0.0)
     attempts: dict[str, list] = {name: [] for name in paths}
+    # the time inside env.step while generating, apart from the generator's own work
+    in_step = {name: Timed(env[name], "step") for name in paths}
+    for name in paths:
+        env[name].step = in_step[name].step
     for b in range(0, len(seeds), ATTEMPTS_PER_BLOCK):
         for name in paths:
             env[name].rebuild()
@@ -107,6 +116,8 @@ def main() -> None:
                     run_attempt(env[name], sources, spec, GenerationConfig(), args.variant, seed)
                 )
             seconds[name] += time.perf_counter() - t0
+    for name in paths:
+        del env[name].step  # the class's own step again
     same = all(
         a.success == b.success
         and a.steps.keys() == b.steps.keys()
@@ -136,12 +147,33 @@ def main() -> None:
     print(f"  stock                     {seconds['stock'] / n:.3f}")
     print(f"  lean                      {seconds['lean'] / n:.3f}")
     lo, hi = MIMICGEN_S_PER_ATTEMPT
-    print(f"  official MimicGen         {lo}-{hi} (its own code, Stack D0, same machine)")
+    print(f"  official MimicGen         {lo}-{hi} (its own code, Stack D0, an earlier machine)")
     print(f"  stock / lean              {seconds['stock'] / seconds['lean']:.2f}x")
     print(f"  lean / physics floor      {seconds['lean'] / floor_s:.2f}x")
     print(f"  official / lean           {lo / (seconds['lean'] / n):.1f}-"
           f"{hi / (seconds['lean'] / n):.1f}x")  # fmt: skip
     print(f"  generator / raw lean step {seconds['lean'] / raw['lean']:.2f} (overhead)")
+    own = seconds["lean"] - in_step["lean"].seconds
+    print(f"  in env.step while generating {ms(in_step['lean'].seconds)} ms per step, the"
+          f" generator's own work {ms(own)} ms per step")  # fmt: skip
+    figures = {
+        "task": TASK,
+        "variant": args.variant,
+        "attempts": n,
+        "control_steps": steps,
+        **machine(),
+        "stock_and_lean_identical": same,
+        "ms_per_step_stock": round(1e3 * raw["stock"] / steps, 4),
+        "ms_per_step_lean": round(1e3 * raw["lean"] / steps, 4),
+        "ms_per_step_physics_floor": round(1e3 * floor_s / steps, 4),
+        "seconds_per_attempt_lean": round(seconds["lean"] / n, 4),
+        "seconds_per_attempt_official_earlier_machine": list(MIMICGEN_S_PER_ATTEMPT),
+        "official_over_lean": [round(x / (seconds["lean"] / n), 1) for x in (lo, hi)],
+        # the whole attempt (reset, selection, recording) over stepping its actions alone
+        "generator_overhead": round(seconds["lean"] / raw["lean"], 3),
+        "ms_per_step_in_env_step_while_generating": round(1e3 * in_step["lean"].seconds / steps, 4),
+        "ms_per_step_generator_own_work": round(1e3 * own / steps, 4),
+    }
     if Path(args.policy).exists():
         ev = {n: evaluation(env[n], args.policy, args.episodes, args.variant) for n in paths}
         same_ev = [r.success for r in ev["stock"][1]] == [r.success for r in ev["lean"][1]]
@@ -151,6 +183,9 @@ def main() -> None:
             print(f"  {name:5s} s/episode           {ev[name][0] / args.episodes:.3f}")
         print(f"  stock / lean              {ev['stock'][0] / ev['lean'][0]:.2f}x")
         print(f"  same outcomes             {same_ev}")
+        figures["seconds_per_episode_lean"] = round(ev["lean"][0] / args.episodes, 4)
+    OUT.write_text(json.dumps(figures, indent=1) + "\n")
+    print(f"-> {OUT}")
     for e in env.values():
         e.close()
 

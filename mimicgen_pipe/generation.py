@@ -3,7 +3,7 @@ source selection, action noise, and one generation attempt over an env protocol 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Generator, Mapping
 from dataclasses import dataclass
 from typing import Protocol, cast
 
@@ -206,13 +206,40 @@ def run_attempt(
     variant: str,
     seed: int,
 ) -> Attempt:
-    """One generation attempt (paper Fig. 2): reset the scene, then for each subtask select a
-    source demo, transform its segment to the reference object's current pose, prepend the
-    interpolation from the current end-effector pose, and execute it as noisy delta-pose
-    actions. Success is the task's success after the last step. An attempt whose next targets
-    the arm cannot reach (env.reachable) stops there, as an IK failure of that subtask; with
-    planned transit, one whose transit the planner cannot find stops there too, as a
-    planner failure of that subtask."""
+    """One generation attempt (paper Fig. 2) on ``env``: :func:`attempt_actions` with every
+    action stepped as it comes."""
+    actions = attempt_actions(env, sources, spec, config, variant, seed)
+    try:
+        while True:
+            env.step(next(actions))
+    except StopIteration as done:
+        return done.value
+
+
+AttemptActions = Generator[np.ndarray, None, Attempt]
+
+
+def attempt_actions(
+    env: Env,
+    sources: SourceDemos,
+    spec: TaskSpec,
+    config: GenerationConfig,
+    variant: str,
+    seed: int,
+) -> AttemptActions:
+    """One generation attempt as a coroutine that steps nothing itself: it yields each
+    control step's action ((7,) float32) and is resumed once ``env`` has stepped it (alone,
+    or as one slot of a batch stepped together, mimicgen_pipe.batched); it returns the
+    Attempt.
+
+    The attempt (paper Fig. 2): reset the scene, then for each subtask select a source demo,
+    transform its segment to the reference object's current pose, prepend the interpolation
+    from the current end-effector pose, and execute it as noisy delta-pose actions. Success
+    is the task's success after the last step. An attempt whose next targets the arm cannot
+    reach (env.reachable) stops there, as an IK failure of that subtask; with planned
+    transit, one whose transit the planner cannot find stops there too, as a planner failure
+    of that subtask. Everything drawn (scene, source demos, offsets, noise) comes from
+    ``seed`` alone."""
     rng = np.random.default_rng(seed)
     pose_rng = generation_rng(seed)
     env.reset(seed=seed, variant=variant)
@@ -279,7 +306,7 @@ def run_attempt(
             sig = recorder.record(env, eef, obj_now, action, targets[k])
             if sub.term_signal is not None and sig[sub.term_signal]:
                 reached[i] = True
-            env.step(action)
+            yield action
             obj_now = env.object_poses()
         if sub.term_signal is not None and env.subtask_signals()[sub.term_signal]:
             reached[i] = True

@@ -1,0 +1,122 @@
+"""The batched attempt engine (mimicgen_pipe.batched) on a CPU lockstep batch of ManiSkill
+StackCube envs: the same attempts as the one-at-a-time path for the same seeds, every slot
+at its own place in its own segments, ended attempts handed back and their slot alone
+reset; and the batch size refused before any work when it is not a positive integer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mimicgen_pipe.batched import LockstepBatch, check_batch_size, run_batched
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.generation import Attempt, GenerationConfig, run_attempt
+from mimicgen_pipe.runner import attempt_seed, source_demos
+from mimicgen_pipe.store import read_store
+
+N_SEEDS, N_SLOTS = 7, 3
+
+
+class Logged:
+    """An env that logs the seeds it is reset with and the steps it takes, in order."""
+
+    def __init__(self, env) -> None:
+        self.env, self.resets, self.steps = env, [], 0
+
+    def __getattr__(self, name: str):
+        return getattr(self.env, name)
+
+    def reset(self, seed: int, variant: str) -> None:
+        self.resets.append(seed)
+        self.env.reset(seed=seed, variant=variant)
+
+    def step(self, action: np.ndarray) -> None:
+        self.steps += 1
+        self.env.step(action)
+
+
+def same(a: Attempt, b: Attempt) -> bool:
+    return (
+        a.seed == b.seed
+        and a.success == b.success
+        and a.failed_subtask == b.failed_subtask
+        and np.array_equal(a.source_demo, b.source_demo)
+        and np.array_equal(a.initial_state, b.initial_state)
+        and a.steps.keys() == b.steps.keys()
+        and all(np.array_equal(a.steps[k], b.steps[k]) for k in a.steps)
+    )
+
+
+@pytest.fixture(scope="module")
+def setting(pipeline):
+    import envs
+
+    spec = envs.task_spec("maniskill", "stack_cube")
+    sources = source_demos(read_store(pipeline / "data/parsed/stack_cube.zarr"), spec.objects)
+    slots = [Logged(envs.make_env("maniskill", "stack_cube")) for _ in range(N_SLOTS)]
+    yield spec, sources, slots
+    for env in slots:
+        env.close()
+
+
+@pytest.mark.sim
+def test_a_lockstep_batch_makes_the_attempts_one_at_a_time_makes(setting):
+    """Every slot's attempts, run again one at a time on that slot's env rebuilt, in the
+    order the slot ran them, are the same bit for bit: interleaving the attempts step by step
+    changes nothing in any of them. (ManiSkill's CPU physics carries contact history from one
+    reset to the next, so an attempt's last bits depend on what its scene ran before it: the
+    reference runs each slot's seeds in that slot's order.)"""
+    spec, sources, slots = setting
+    config = GenerationConfig(action_noise=0.05)
+    seeds = [attempt_seed(11, "D0", i) for i in range(N_SEEDS)]
+    batch = LockstepBatch(tuple(slots))
+    batch.rebuild()
+    for env in slots:
+        env.resets, env.steps = [], 0
+    got = dict(run_batched(batch, sources, spec, config, "D0", seeds))
+    assert sorted(got) == list(range(N_SEEDS))
+    # each slot began with its own seed, and every seed was run once, on one slot
+    assert [env.resets[0] for env in slots] == seeds[:N_SLOTS]
+    assert sorted(s for env in slots for s in env.resets) == sorted(seeds)
+    assert max(len(env.resets) for env in slots) >= 2  # a freed slot took the next seed
+    # lockstep: a slot steps once per step of the attempts it ran, no more
+    assert [env.steps for env in slots] == [
+        sum(len(got[seeds.index(s)].steps.get("actions", ())) for s in env.resets) for env in slots
+    ]
+    for env in slots:
+        ran, env.resets = env.resets, []
+        env.rebuild()
+        for seed in ran:
+            alone = run_attempt(env, sources, spec, config, "D0", seed)
+            assert same(alone, got[seeds.index(seed)]), f"seed {seed}"
+
+
+@pytest.mark.sim
+def test_what_an_attempt_draws_does_not_depend_on_its_slot(setting):
+    """The scene, the source demos followed, and every step up to the first contact are
+    the seed's alone: one at a time on one env and in a batch, the same."""
+    spec, sources, slots = setting
+    config = GenerationConfig(action_noise=0.05)
+    seeds = [attempt_seed(5, "D1", i) for i in range(N_SLOTS + 2)]
+    slots[0].rebuild()
+    alone = [run_attempt(slots[0], sources, spec, config, "D1", s) for s in seeds]
+    batch = LockstepBatch(tuple(slots[:2]))
+    batch.rebuild()
+    together = dict(run_batched(batch, sources, spec, config, "D1", seeds))
+    for i, a in enumerate(alone):
+        b = together[i]
+        assert np.array_equal(a.initial_state, b.initial_state)
+        assert np.array_equal(a.initial_object_poses, b.initial_object_poses)
+        assert np.array_equal(a.source_demo[:1], b.source_demo[:1])
+        assert np.array_equal(a.steps["actions"][:20], b.steps["actions"][:20])
+
+
+@pytest.mark.parametrize("size", [0, -2, 1.5, True, "4"])
+def test_a_batch_size_that_is_not_a_positive_integer_is_refused(size):
+    with pytest.raises(InputError, match=r"generate.num_envs.*integer >= 1"):
+        check_batch_size(size)
+
+
+def test_an_empty_lockstep_batch_is_refused():
+    with pytest.raises(InputError, match="not 0"):
+        LockstepBatch(())
