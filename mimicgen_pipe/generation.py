@@ -298,10 +298,14 @@ def attempt_actions(
         if not env.reachable(targets).all():
             ik_failed = True
             break
+        sigma = np.full(len(targets), config.action_noise)
+        if sub.noise_free_radius is not None:
+            near = np.linalg.norm(targets[:, :3, 3] - ref_now[:3, 3], axis=-1)
+            sigma[near <= sub.noise_free_radius] = 0.0
         for k in range(len(targets)):
             eef = env.eef_pose()
             action = env.target_pose_to_action(targets[k], grips[k])
-            action = add_action_noise(action[None], config.action_noise, rng)[0]
+            action = add_action_noise(action[None], sigma[k], rng)[0]
             action = clip_actions(action).astype(np.float32)
             sig = recorder.record(env, eef, obj_now, action, targets[k])
             if sub.term_signal is not None and sig[sub.term_signal]:

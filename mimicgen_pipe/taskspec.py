@@ -20,12 +20,17 @@ class SubtaskSpec:
         ends with the demo.
     term_offset_range: (lo, hi) steps, inclusive, added to the detected end; sampled per
         generation attempt as in the reference implementation.
+    noise_free_radius: [m] the subtask's steps whose target position is within this
+        distance of the reference object's position (world frame, as the generator observes
+        it) get no action noise (paper M.4): the last centimetres of a tight insertion, for
+        one. None: action noise on every step.
     """
 
     name: str
     reference_object: str
     term_signal: str | None
     term_offset_range: tuple[int, int] = (0, 0)
+    noise_free_radius: float | None = None
 
 
 @dataclass(frozen=True)
@@ -117,6 +122,11 @@ class TaskSpec:
             lo, hi = sub.term_offset_range
             if not 0 <= lo <= hi:
                 raise ValueError(f"task {self.name}: bad offset range {sub.term_offset_range}")
+            if sub.noise_free_radius is not None and not sub.noise_free_radius >= 0:
+                raise ValueError(
+                    f"task {self.name}: subtask {sub.name}'s noise_free_radius "
+                    f"{sub.noise_free_radius} is not a distance >= 0 [m]"
+                )
         for name, variant in self.reset_variants.items():
             missing = [o for o in self.objects if o not in variant.bounds]
             if missing:
