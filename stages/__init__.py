@@ -74,16 +74,15 @@ def stage_params(args: argparse.Namespace) -> Params:
     filled in from the task file where params leave it null."""
     params = load_params(args.params)
     check_variants(params, args.params)
-    if params.train.obs_keys is not None:
-        spec = envs.task_spec(params.backend, params.task)
-        envs.check_obs_keys(spec, params.train.obs_keys, f"{args.params}: train.obs_keys")
     params = with_overrides(
         params,
         getattr(args, "backend", None),
         getattr(args, "task", None),
         getattr(args, "robot", None),
     )
-    if params.train.obs_keys is not None:
+    if params.train.obs_keys is not None:  # the keys of the task the stage runs
+        spec = envs.task_spec(params.backend, params.task)
+        envs.check_obs_keys(spec, params.train.obs_keys, f"{args.params}: train.obs_keys")
         return params
     keys = list(envs.task_spec(params.backend, params.task).default_obs_keys)
     return dataclasses.replace(params, train=dataclasses.replace(params.train, obs_keys=keys))

@@ -101,3 +101,23 @@ def test_a_task_caps_the_generate_action_noise_and_says_so():
     )
     spec = envs.task_spec("maniskill", "stack_cube")
     assert capped_action_noise(Params(), spec) == (Params(), None)
+
+
+def test_obs_keys_are_checked_against_the_task_the_command_line_names(tmp_path):
+    """The suite runs every task with one params.yaml and --task: train.obs_keys are the
+    named task's, not params.yaml's task's."""
+    import argparse
+
+    from stages import stage_params
+
+    keys = ["eef_pos", "peg_pos", "box_pos"]  # peg_insertion's, not stack_cube's
+    (tmp_path / "params.yaml").write_text(
+        f"task: stack_cube\nbackend: maniskill\ntrain: {{obs_keys: [{', '.join(keys)}]}}\n"
+    )
+    named = argparse.Namespace(params=str(tmp_path / "params.yaml"), task="peg_insertion")
+    assert stage_params(named).train.obs_keys == keys
+    unnamed = argparse.Namespace(params=str(tmp_path / "params.yaml"))
+    with pytest.raises(
+        InputError, match="'peg_pos', 'box_pos' not an observation of task stack_cube"
+    ):
+        stage_params(unnamed)
