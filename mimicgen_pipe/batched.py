@@ -84,9 +84,7 @@ class LockstepBatch:
 def check_batch_size(num_envs: int) -> None:
     """InputError unless ``num_envs`` is a positive whole number."""
     if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
-        raise InputError(
-            f"batch size (generate.num_envs) must be an integer >= 1, not {num_envs!r}"
-        )
+        raise InputError(f"batch size num_envs must be an integer >= 1, not {num_envs!r}")
 
 
 def run_batched(

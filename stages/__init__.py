@@ -80,9 +80,9 @@ def stage_params(args: argparse.Namespace) -> Params:
         getattr(args, "task", None),
         getattr(args, "robot", None),
     )
-    if params.train.obs_keys is not None:  # the keys of the task the stage runs
-        spec = envs.task_spec(params.backend, params.task)
+    spec = envs.task_spec(params.backend, params.task)  # the task the stage runs
+    if params.train.obs_keys is not None:
         envs.check_obs_keys(spec, params.train.obs_keys, f"{args.params}: train.obs_keys")
         return params
-    keys = list(envs.task_spec(params.backend, params.task).default_obs_keys)
+    keys = list(spec.default_obs_keys)
     return dataclasses.replace(params, train=dataclasses.replace(params.train, obs_keys=keys))

@@ -113,7 +113,7 @@ def test_what_an_attempt_draws_does_not_depend_on_its_slot(setting):
 
 @pytest.mark.parametrize("size", [0, -2, 1.5, True, "4"])
 def test_a_batch_size_that_is_not_a_positive_integer_is_refused(size):
-    with pytest.raises(InputError, match=r"generate.num_envs.*integer >= 1"):
+    with pytest.raises(InputError, match=r"batch size num_envs must be an integer >= 1, not "):
         check_batch_size(size)
 
 
