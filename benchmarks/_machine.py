@@ -1,11 +1,20 @@
-"""What a benchmark ran on, written beside its figures: these machines differ, so a figure
-is read against the machine that gave it."""
+"""What every benchmark shares: where its figures go (``figures_path``) and what it ran on,
+written beside them (these machines differ, so a figure is read against the machine that
+gave it)."""
 
 from __future__ import annotations
 
 import os
 import platform
 from pathlib import Path
+
+FIGURES = Path(__file__).resolve().parent.parent / "metrics" / "benchmarks"
+
+
+def figures_path(script: str) -> Path:
+    """metrics/benchmarks/<name>.json, the committed figures of benchmarks/<name>.py
+    (``script``: that file's ``__file__``)."""
+    return FIGURES / Path(script).with_suffix(".json").name
 
 
 def machine() -> dict:

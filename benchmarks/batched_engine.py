@@ -2,7 +2,7 @@
 CPU: the same StackCube attempts run one at a time on one env and on a lockstep batch of
 ``--num-envs`` CPU envs in one process, alternating block by block on rebuilt scenes so that
 machine load falls on both alike; seconds per attempt, their ratio, and whether every
-attempt drew the same scene and source demo. Written to benchmarks/batched_engine.json.
+attempt drew the same scene and source demo. Written to metrics/benchmarks/batched_engine.json.
 
     python benchmarks/batched_engine.py [--attempts 64] [--num-envs 4] [--variant D0]
 
@@ -16,10 +16,9 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from pathlib import Path
 
 import numpy as np
-from _machine import machine
+from _machine import figures_path, machine
 
 import envs
 from mimicgen_pipe.batched import LockstepBatch, run_batched
@@ -28,7 +27,7 @@ from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 from mimicgen_pipe.store import read_store
 
 TASK = "stack_cube"
-OUT = Path(__file__).with_suffix(".json")
+OUT = figures_path(__file__)
 
 
 def main() -> None:

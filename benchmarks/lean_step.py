@@ -1,6 +1,6 @@
 """ManiSkill's stock step vs the lean step (maniskill.lean_step), StackCube, one process, one
 run: ms per control step, seconds per generation attempt, the physics floor, the generator's
-overhead, and seconds per policy-evaluation episode; written to benchmarks/lean_step.json.
+overhead, and seconds per policy-evaluation episode; written to metrics/benchmarks/lean_step.json.
 
     python benchmarks/lean_step.py [--attempts 48] [--variant D0]
         [--policy data/policies/stack_cube_D0/seed0/epoch00200.pt] [--episodes 10]
@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _machine import machine
+from _machine import figures_path, machine
 
 import envs
 from mimicgen_pipe.evaluation import evaluation_seed, rollout
@@ -32,7 +32,7 @@ TASK = "stack_cube"
 # the official MimicGen code's s per Stack D0 attempt, measured once on an earlier 2-core
 # machine: not side by side with a run of this script, so its ratio is approximate
 MIMICGEN_S_PER_ATTEMPT = (2.0, 2.3)
-OUT = Path(__file__).with_suffix(".json")
+OUT = figures_path(__file__)
 
 
 class Timed:
@@ -105,8 +105,10 @@ def main() -> None:
     attempts: dict[str, list] = {name: [] for name in paths}
     # the time inside env.step while generating, apart from the generator's own work
     in_step = {name: Timed(env[name], "step") for name in paths}
+    in_reset = {name: Timed(env[name], "reset") for name in paths}
     for name in paths:
         env[name].step = in_step[name].step
+        env[name].reset = in_reset[name].reset
     for b in range(0, len(seeds), ATTEMPTS_PER_BLOCK):
         for name in paths:
             env[name].rebuild()
@@ -117,7 +119,7 @@ def main() -> None:
                 )
             seconds[name] += time.perf_counter() - t0
     for name in paths:
-        del env[name].step  # the class's own step again
+        del env[name].step, env[name].reset  # the class's own again
     same = all(
         a.success == b.success
         and a.steps.keys() == b.steps.keys()
@@ -153,9 +155,14 @@ def main() -> None:
     print(f"  official / lean           {lo / (seconds['lean'] / n):.1f}-"
           f"{hi / (seconds['lean'] / n):.1f}x")  # fmt: skip
     print(f"  generator / raw lean step {seconds['lean'] / raw['lean']:.2f} (overhead)")
-    own = seconds["lean"] - in_step["lean"].seconds
-    print(f"  in env.step while generating {ms(in_step['lean'].seconds)} ms per step, the"
-          f" generator's own work {ms(own)} ms per step")  # fmt: skip
+    stepping, resetting = in_step["lean"].seconds, in_reset["lean"].seconds
+    own = seconds["lean"] - stepping - resetting
+    print(f"  in env.step while generating {ms(stepping)} ms per step, in env.reset"
+          f" {ms(resetting)}, the generator's own work {ms(own)}")  # fmt: skip
+    # what the overhead would be if the generator's own work cost nothing: env.step is
+    # slower between the generator's reads than back to back, and every attempt resets
+    floor_overhead = (stepping + resetting) / raw["lean"]
+    print(f"  overhead with no own work  {floor_overhead:.2f} (env.step and env.reset alone)")
     figures = {
         "task": TASK,
         "variant": args.variant,
@@ -171,8 +178,10 @@ def main() -> None:
         "official_over_lean": [round(x / (seconds["lean"] / n), 1) for x in (lo, hi)],
         # the whole attempt (reset, selection, recording) over stepping its actions alone
         "generator_overhead": round(seconds["lean"] / raw["lean"], 3),
-        "ms_per_step_in_env_step_while_generating": round(1e3 * in_step["lean"].seconds / steps, 4),
+        "ms_per_step_in_env_step_while_generating": round(1e3 * stepping / steps, 4),
+        "ms_per_step_in_env_reset_while_generating": round(1e3 * resetting / steps, 4),
         "ms_per_step_generator_own_work": round(1e3 * own / steps, 4),
+        "generator_overhead_with_no_own_work": round(floor_overhead, 3),
     }
     if Path(args.policy).exists():
         ev = {n: evaluation(env[n], args.policy, args.episodes, args.variant) for n in paths}

@@ -1,6 +1,6 @@
 """Milliseconds per camera image of the observe stage's renderers, per back end, camera set,
 shader and size, and MB of stored (zstd) images per 1000 demos; written to
-benchmarks/observe.json.
+metrics/benchmarks/observe.json.
 
 States come from episodes of random arm motions (every step's stored state, as a store
 holds them), ``--steps`` steps each; each setup renders every state once after one warm-up
@@ -74,7 +74,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--episodes", type=int, default=2, help="episodes per back end")
     p.add_argument("--steps", type=int, default=110, help="steps per episode")
-    p.add_argument("--out", default="benchmarks/observe.json")
+    p.add_argument("--out", default="metrics/benchmarks/observe.json")
     args = p.parse_args()
     rows, sizes = [], {}
     for backend, task in BACKENDS.items():

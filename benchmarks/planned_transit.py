@@ -1,5 +1,5 @@
 """Seconds per planned transit (generate.transit: planned) on ManiSkill, the planner's share
-of an attempt, and steps per transit; written to benchmarks/planned_transit.json.
+of an attempt, and steps per transit; written to metrics/benchmarks/planned_transit.json.
 
 Attempts run as the generate stage runs them (a rebuilt scene per block of 16), on the
 transit pipeline's parsed source demos (``dvc repro transit/dvc.yaml`` writes them), with
@@ -15,9 +15,9 @@ import argparse
 import json
 import os
 import time
-from pathlib import Path
 
 import numpy as np
+from _machine import figures_path
 
 import envs
 from mimicgen_pipe.generation import GenerationConfig, run_attempt
@@ -26,7 +26,7 @@ from mimicgen_pipe.store import read_store
 from mimicgen_pipe.transit import PlannerSettings
 
 CELLS = (("stack_cube_wall", "wall"), ("stack_cube_wall", "D0"), ("pull_cube_tool", "D0"))
-OUT = Path(__file__).with_suffix(".json")
+OUT = figures_path(__file__)
 
 
 def measure(task: str, variant: str, attempts: int) -> dict:

@@ -6,7 +6,7 @@ store into training and validation episodes, per training episode, for
     (c) 10,000 demos of a 10,000-episode store,
 
     python benchmarks/train_memory.py [--dir /tmp/train_memory]
-        [--json benchmarks/train_memory.json] [--read-store]
+        [--json metrics/benchmarks/train_memory.json] [--read-store]
 
 The stores are synthetic but have the schema the generate stage writes for StackCube (every
 data/ and meta/episodes/ array, dtypes and widths as written, 120-150 steps per episode;
@@ -193,7 +193,7 @@ def measure(path: Path, num_demos: int, reader: str) -> dict[str, float]:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--dir", default="/tmp/train_memory", help="where the stores are kept")
-    p.add_argument("--json", default=str(REPO / "benchmarks/train_memory.json"))
+    p.add_argument("--json", default=str(REPO / "metrics/benchmarks/train_memory.json"))
     p.add_argument("--read-store", action="store_true", help="also the whole-store read")
     p.add_argument(
         "--measure", nargs=3, metavar=("STORE", "NUM_DEMOS", "READER"), help=argparse.SUPPRESS

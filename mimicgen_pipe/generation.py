@@ -11,7 +11,7 @@ import numpy as np
 
 from mimicgen_pipe import poses
 from mimicgen_pipe.controller import clip_actions
-from mimicgen_pipe.observations import low_dim_observation
+from mimicgen_pipe.observations import observation_values
 from mimicgen_pipe.pose_noise import PoseNoise, generation_rng, perturb_pose
 from mimicgen_pipe.registry import load
 from mimicgen_pipe.segments import segment_bounds
@@ -133,10 +133,18 @@ def select_source(
     return load("mimicgen_pipe.selection", strategy).select(candidates, rng, nn_k)
 
 
-def add_action_noise(actions: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
-    """actions (K, 7) plus sigma * N(0, 1) on every dimension but the gripper (paper M.4)."""
-    noisy = np.array(actions, dtype=np.float64, copy=True)
-    noisy[:, :-1] += sigma * rng.standard_normal((len(noisy), noisy.shape[1] - 1))
+def action_noise(sigma: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(K, 6) noise for K actions' translation and rotation, sigma (K,) * N(0, 1) each; a
+    (7,) action's gripper gets none (paper M.4). Drawn in one call: the same numbers as K
+    draws of one row each."""
+    sigma = np.asarray(sigma, dtype=np.float64)
+    return sigma[:, None] * rng.standard_normal((len(sigma), 6))
+
+
+def add_action_noise(action: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """A (7,) action plus ``noise`` (6,) on every dimension but the gripper, as float64."""
+    noisy = np.array(action, dtype=np.float64, copy=True)
+    noisy[:-1] += noise
     return noisy
 
 
@@ -302,10 +310,10 @@ def attempt_actions(
         if sub.noise_free_radius is not None:
             near = np.linalg.norm(targets[:, :3, 3] - ref_now[:3, 3], axis=-1)
             sigma[near <= sub.noise_free_radius] = 0.0
+        noise = action_noise(sigma, rng)
         for k in range(len(targets)):
             eef = env.eef_pose()
-            action = env.target_pose_to_action(targets[k], grips[k])
-            action = add_action_noise(action[None], sigma[k], rng)[0]
+            action = add_action_noise(env.target_pose_to_action(targets[k], grips[k]), noise[k])
             action = clip_actions(action).astype(np.float32)
             sig = recorder.record(env, eef, obj_now, action, targets[k])
             if sub.term_signal is not None and sig[sub.term_signal]:
@@ -361,11 +369,12 @@ class StepRecorder:
     """Collects the per-step record of an episode, observed before each step's action:
     actions, eef_pose, target_pose, gripper, env_state, object_poses/<obj>,
     subtask_signals/<name>, and the policy observation obs/<key> (mimicgen_pipe.observations).
+    One list per array, its names fixed at the first step.
     """
 
     def __init__(self, objects: tuple[str, ...]) -> None:
         self.objects = objects
-        self.rows: dict[str, list] = {}
+        self.columns: dict[str, list] = {}
 
     def record(
         self,
@@ -377,22 +386,31 @@ class StepRecorder:
     ) -> dict[str, bool]:
         """Append one step; returns the subtask signals it recorded."""
         sig = env.subtask_signals()
-        row = {
-            "actions": action,
-            "eef_pose": eef,
-            "target_pose": target,
-            "env_state": env.get_state(),
-        }
-        row.update({f"object_poses/{o}": object_poses[o] for o in self.objects})
-        row.update({f"subtask_signals/{n}": v for n, v in sig.items()})
-        obs = low_dim_observation(eef, env.gripper_state(), object_poses, self.objects)
-        row.update({f"obs/{k}": v for k, v in obs.items()})
-        for key, value in row.items():
-            self.rows.setdefault(key, []).append(value)
+        obs = observation_values(eef, env.gripper_state(), object_poses, self.objects)
+        values = (
+            action,
+            eef,
+            target,
+            env.get_state(),
+            *(object_poses[o] for o in self.objects),
+            *sig.values(),
+            *obs.values(),
+        )
+        if not self.columns:
+            names = ("actions", "eef_pose", "target_pose", "env_state")
+            names += tuple(f"object_poses/{o}" for o in self.objects)
+            names += tuple(f"subtask_signals/{n}" for n in sig)
+            names += tuple(f"obs/{k}" for k in obs)
+            self.columns = {name: [] for name in names}
+        for column, value in zip(self.columns.values(), values, strict=True):
+            column.append(value)
         return sig
 
     def arrays(self) -> dict[str, np.ndarray]:
-        out = {k: np.asarray(v) for k, v in self.rows.items()}
+        out = {
+            k: np.asarray(v, np.float32) if k.startswith("obs/") else np.asarray(v)
+            for k, v in self.columns.items()
+        }
         if "actions" in out:
             out["gripper"] = out["actions"][:, -1].astype(np.float32)
         return out

@@ -44,7 +44,18 @@ def low_dim_observation(
     object_poses: Mapping[str, np.ndarray],
     objects: Sequence[str],
 ) -> dict[str, np.ndarray]:
-    """Observation of one step.
+    """Observation of one step: :func:`observation_values` as float32."""
+    values = observation_values(eef_pose, gripper_qpos, object_poses, objects)
+    return {k: np.asarray(v, np.float32) for k, v in values.items()}
+
+
+def observation_values(
+    eef_pose: np.ndarray,
+    gripper_qpos: np.ndarray,
+    object_poses: Mapping[str, np.ndarray],
+    objects: Sequence[str],
+) -> dict[str, np.ndarray]:
+    """Observation of one step in float64 (a recorder casts a whole episode's at once).
 
     eef_pose: 4x4 end-effector (TCP) pose, world frame. gripper_qpos: finger joint positions
     [m]. object_poses: object name -> 4x4 pose, world frame. Relative positions
@@ -64,7 +75,7 @@ def low_dim_observation(
     for i, a in enumerate(objects):
         for b in objects[i + 1 :]:
             out[f"{a}_to_{b}_pos"] = object_poses[b][:3, 3] - object_poses[a][:3, 3]
-    return {k: np.asarray(v, np.float32) for k, v in out.items()}
+    return out
 
 
 def observation_dims(objects: Sequence[str]) -> dict[str, int]:

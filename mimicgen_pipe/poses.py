@@ -15,16 +15,7 @@ def quat_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:
     """(..., 4) unit quaternions (w, x, y, z) -> (..., 3, 3) rotation matrices."""
     q = np.asarray(q, dtype=np.float64)
     if q.ndim == 1:  # one quaternion: plain floats beat numpy's per-call overhead ~10x
-        w, x, y, z = (float(v) for v in q)
-        n = (w * w + x * x + y * y + z * z) ** 0.5
-        w, x, y, z = w / n, x / n, y / n, z / n
-        return np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-            ]
-        )
+        return np.array(_quat_rows_one(q))
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
     r = np.empty(q.shape[:-1] + (3, 3))
@@ -38,6 +29,18 @@ def quat_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:
     r[..., 2, 1] = 2 * (y * z + w * x)
     r[..., 2, 2] = 1 - 2 * (x * x + y * y)
     return r
+
+
+def _quat_rows_one(q: np.ndarray) -> list[list[float]]:
+    """The rows of one (4,) wxyz quaternion's rotation matrix, as plain floats."""
+    w, x, y, z = q.tolist()
+    n = (w * w + x * x + y * y + z * z) ** 0.5
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
 
 
 def matrix_to_quat_wxyz(r: np.ndarray) -> np.ndarray:
@@ -90,6 +93,12 @@ def _matrix_to_quat_one(r: np.ndarray) -> np.ndarray:
 def pose_from_pq(p: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
     """Position (..., 3) [m] and quaternion (..., 4) wxyz -> (..., 4, 4) pose."""
     p = np.asarray(p, dtype=np.float64)
+    q_wxyz = np.asarray(q_wxyz, dtype=np.float64)
+    if p.ndim == 1 and q_wxyz.ndim == 1:  # one pose (every step): the same floats, built once
+        rows = _quat_rows_one(q_wxyz)
+        for row, v in zip(rows, p.tolist(), strict=True):
+            row.append(v)
+        return np.array([*rows, [0.0, 0.0, 0.0, 1.0]])
     t = np.zeros(p.shape[:-1] + (4, 4))
     t[..., :3, :3] = quat_wxyz_to_matrix(q_wxyz)
     t[..., :3, 3] = p

@@ -5,6 +5,7 @@ import pytest
 
 from mimicgen_pipe import poses
 from mimicgen_pipe.generation import (
+    action_noise,
     add_action_noise,
     interpolation,
     pose_distance,
@@ -117,9 +118,19 @@ def test_action_noise_spares_gripper():
     rng = np.random.default_rng(0)
     a = np.zeros((2000, 7))
     a[:, 6] = -1
-    noisy = add_action_noise(a, 0.05, rng)
+    noise = action_noise(np.full(len(a), 0.05), rng)
+    noisy = np.stack([add_action_noise(x, n) for x, n in zip(a, noise, strict=True)])
     assert np.all(noisy[:, 6] == -1)
     assert noisy[:, :6].std() == pytest.approx(0.05, rel=0.05)
+
+
+def test_action_noise_drawn_at_once_is_drawn_row_by_row():
+    sigma = np.array([0.05, 0.0, 0.1, 0.05])
+    at_once = action_noise(sigma, np.random.default_rng(3))
+    rng = np.random.default_rng(3)
+    by_row = np.stack([action_noise(sigma[k : k + 1], rng)[0] for k in range(len(sigma))])
+    assert np.array_equal(at_once, by_row)
+    assert np.all(at_once[1] == 0) and np.all(at_once[[0, 2, 3]] != 0)
 
 
 SUBTASKS = (

@@ -262,8 +262,13 @@ def is_grasping(env, actor, min_force: float = 0.5, max_angle: float = 85) -> bo
         else:
             continue
         for i, finger in enumerate(fingers):
-            if other is finger:
-                impulse[i] += sign * np.sum([p.impulse for p in contact.points], axis=0)
+            if other is finger and (points := contact.points):
+                # the points' float32 impulses summed in order, as numpy sums them along an
+                # axis of arrays stacked, without the stacking
+                total = points[0].impulse
+                for point in points[1:]:
+                    total = total + point.impulse
+                impulse[i] += sign * total
     dt = F32(env.scene.px.timestep)
     for finger, side, total in zip(fingers, (1, -1), impulse, strict=True):
         force = total.astype(F32) / dt
