@@ -19,6 +19,9 @@ env is made) and defines
 - ``cameras(robot)``: the observation cameras (of CAMERAS) that ``robot`` has there;
 - optionally ``PLANNER_ROBOTS``: the arms whose envs plan transits
   (mimicgen_pipe.generation.PlanningEnv; generate.transit: planned);
+- optionally a batched form (mimicgen_pipe.batched.BatchEnv, generate.num_envs):
+  ``check_batched(task, robot, num_envs, sim_backend)``, InputError for a batch it cannot
+  run, and ``make_batch(task, robot, num_envs, sim_backend)``;
 
 and has a module ``render.py`` whose ``Renderer(task, robot, width, height, cameras)`` draws
 stored states (mimicgen_pipe.video.make_renderer, for the render and observe stages). Back
@@ -35,6 +38,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.params import check_batch_size
 from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.taskspec import TaskSpec
 
@@ -140,6 +144,36 @@ def make_env(backend: str, task: str, robot: str = "panda", lean_step: bool = Tr
     check_robot(backend, robot)
     threadpool_limits(1, user_api="blas")
     return backend_package(backend).make_env(task, robot, lean_step)
+
+
+def check_batched(
+    backend: str, task: str, robot: str, num_envs: int, sim_backend: str | None, transit: str
+) -> None:
+    """InputError, before any work, unless ``backend`` can step ``num_envs`` scenes of
+    ``task`` with ``robot`` together on ``sim_backend`` (its simulation, where it has a
+    choice; None where not): a back end without a batched form, a bad batch size, or a
+    planned transit (a batch has no planner)."""
+    check_batch_size(num_envs)
+    package = backend_package(backend)
+    if not hasattr(package, "check_batched"):
+        raise InputError(
+            f"generate.num_envs {num_envs}: backend {backend} has no batched form (its "
+            "simulator holds one scene per process); use generate.num_envs 1 and "
+            "generate.workers for more processes"
+        )
+    if transit == "planned":
+        raise InputError(
+            "generate.transit: planned: a batch of scenes has no motion planner; use "
+            "transit: linear, or generate.num_envs 1"
+        )
+    package.check_batched(task, robot, num_envs, sim_backend)
+
+
+def make_batch_env(backend: str, task: str, robot: str, num_envs: int, sim_backend: str | None):
+    """A fresh batch of ``num_envs`` scenes of ``task`` (mimicgen_pipe.batched.BatchEnv),
+    after :func:`check_batched`; numpy's BLAS on one thread, as :func:`make_env`."""
+    threadpool_limits(1, user_api="blas")
+    return backend_package(backend).make_batch(task, robot, num_envs, sim_backend)
 
 
 @dataclass(frozen=True)

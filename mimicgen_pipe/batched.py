@@ -22,7 +22,6 @@ from typing import Protocol
 
 import numpy as np
 
-from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.generation import (
     Attempt,
     AttemptActions,
@@ -31,6 +30,7 @@ from mimicgen_pipe.generation import (
     SourceDemos,
     attempt_actions,
 )
+from mimicgen_pipe.params import check_batch_size
 from mimicgen_pipe.taskspec import TaskSpec
 
 
@@ -79,12 +79,6 @@ class LockstepBatch:
     def close(self) -> None:
         for env in self.envs:
             env.close()
-
-
-def check_batch_size(num_envs: int) -> None:
-    """InputError unless ``num_envs`` is a positive whole number."""
-    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
-        raise InputError(f"batch size num_envs must be an integer >= 1, not {num_envs!r}")
 
 
 def run_batched(

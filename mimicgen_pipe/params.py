@@ -44,7 +44,9 @@ class GenerateParams:
     of ``workers`` simulator processes here) or ``ray`` (Ray tasks; see RayParams). Neither
     workers nor executor changes the data. transit: how the arm reaches each segment:
     "linear" interpolation (paper M.2) or a "planned" collision-free path (ManiSkill only;
-    mimicgen_pipe.transit), with the planner's knobs in ``planner``."""
+    mimicgen_pipe.transit), with the planner's knobs in ``planner``. num_envs: scenes each
+    worker steps together in one batched simulation (mimicgen_pipe.batched; ManiSkill on
+    maniskill.sim_backend physx_cuda); 1: one attempt at a time."""
 
     variants: list[str] = field(default_factory=lambda: ["D0", "D1"])
     num_demos: int = 1000
@@ -62,6 +64,7 @@ class GenerateParams:
     robot: str = "panda"
     transit: Literal["linear", "planned"] = "linear"
     planner: PlannerSettings = field(default_factory=PlannerSettings)
+    num_envs: int = 1
 
 
 @dataclass(frozen=True)
@@ -191,9 +194,12 @@ class RayParams:
 class ManiSkillParams:
     """lean_step: the ManiSkill back end steps with its lean control step
     (envs/maniskill/lean.py: the same simulation, bit for bit, without ManiSkill's per-step
-    bookkeeping); false: ManiSkill's own ``env.step`` and ``evaluate()``, for checking."""
+    bookkeeping); false: ManiSkill's own ``env.step`` and ``evaluate()``, for checking.
+    sim_backend: ManiSkill's simulation for generation: physx_cpu (one scene per process) or
+    physx_cuda (generate.num_envs scenes on the GPU, envs/maniskill/batch.py)."""
 
     lean_step: bool = True
+    sim_backend: Literal["physx_cpu", "physx_cuda"] = "physx_cpu"
 
 
 @dataclass(frozen=True)
@@ -296,6 +302,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "generate.n_fixed": (0, 1000),
     "generate.nn_k": (1, 10_000),
     "generate.workers": (1, 256),
+    "generate.num_envs": (1, 65_536),
     "generate.planner.approach_distance": (0.0, 1.0),
     "generate.planner.clearance": (0.0, 0.2),
     "generate.planner.max_joint_step": (0.001, 0.5),
@@ -343,6 +350,12 @@ _RANGES: dict[str, tuple[float, float]] = {
     "suite.scaling.num_demos": (1, 10_000_000),  # each entry
     "suite.scaling.max_attempts": (1, 10_000_000),
 }
+
+
+def check_batch_size(num_envs: int) -> None:
+    """InputError unless ``num_envs`` is a positive whole number."""
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+        raise InputError(f"batch size num_envs must be an integer >= 1, not {num_envs!r}")
 
 
 def range_error(key: str, value: float) -> str | None:
@@ -583,8 +596,9 @@ def data_params(params: Params, stage: Literal["source", "generate", "observe"])
     keys dvc.yaml declares for the stage (so the same declared params give the same bytes).
     source: task, backend, source. generate: generate without worker counts and the variant
     list (without num_demos in fixed_attempts mode, where it is unused; without transit and
-    planner for linear transit, so that stores from before planned transit keep their
-    bytes), pose_noise.
+    planner for linear transit and num_envs for one attempt at a time, so that stores from
+    before planned transit and batches keep their bytes), pose_noise, and ManiSkill's
+    sim_backend where it is not physx_cpu.
     observe: observe without its worker count."""
     if stage == "source":
         return {"task": params.task, "backend": params.backend, "source": as_dict(params.source)}
@@ -596,6 +610,10 @@ def data_params(params: Params, stage: Literal["source", "generate", "observe"])
     g = as_dict(params.generate)
     unused = ("num_demos",) if g["mode"] == "fixed_attempts" else ()
     unused += ("transit", "planner") if g["transit"] == "linear" else ()
+    unused += ("num_envs",) if g["num_envs"] == 1 else ()  # one at a time: the bytes as before
     for key in _NOT_DATA["generate"] + unused:
         del g[key]
-    return {"generate": g, "pose_noise": as_dict(params.pose_noise)}
+    out = {"generate": g, "pose_noise": as_dict(params.pose_noise)}
+    if params.backend == "maniskill" and params.maniskill.sim_backend != "physx_cpu":
+        out["maniskill"] = {"sim_backend": params.maniskill.sim_backend}
+    return out

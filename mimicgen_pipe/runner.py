@@ -6,7 +6,9 @@ Every attempt's seed is derived from (stage seed, variant, attempt index), and r
 consumed in attempt order. A simulator carries history from one episode to the next (PhysX
 keeps contact caches across resets), so attempts run in fixed blocks of
 ``ATTEMPTS_PER_BLOCK``, each on a freshly rebuilt scene: the dataset is then the same on one
-worker or many, whichever worker runs a block.
+worker or many, whichever worker runs a block. A worker with a batch of N scenes
+(generate.num_envs, mimicgen_pipe.batched) runs blocks of N times as many, its slots in
+lockstep.
 """
 
 from __future__ import annotations
@@ -16,11 +18,12 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, overload
+from typing import Any, cast, overload
 
 import numpy as np
 from tqdm import tqdm
 
+from mimicgen_pipe.batched import BatchEnv, run_batched
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.generation import (
@@ -39,6 +42,8 @@ from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
 from mimicgen_pipe.store import EpisodeStore, read_store, write_store
 from mimicgen_pipe.taskspec import TaskSpec
+
+ATTEMPTS_PER_BLOCK = 16  # rebuilding a ManiSkill scene costs ~0.24 s, ~4% of a block
 
 
 def attempt_seed(seed: int, variant: str, attempt: int) -> int:
@@ -79,13 +84,22 @@ class AttemptSeeds(Sequence[int]):
 
 @dataclass(frozen=True)
 class AttemptJob:
-    """Everything a worker needs, sent once per worker."""
+    """Everything a worker needs, sent once per worker. make_batch: the worker's batch of
+    ``num_envs`` scenes (the back end's batched form), None to run one attempt at a time on
+    an env from make_env (which also checks the workspace before any work)."""
 
     make_env: Callable[[], Env]
     sources: SourceDemos
     spec: TaskSpec
     config: GenerationConfig
     variant: str
+    make_batch: Callable[[], BatchEnv] | None = None
+    num_envs: int = 1
+
+    @property
+    def block_size(self) -> int:
+        """Attempts per block: ATTEMPTS_PER_BLOCK for each scene a worker steps."""
+        return ATTEMPTS_PER_BLOCK * self.num_envs
 
 
 def with_generate_options(
@@ -149,10 +163,12 @@ def attempt_job(
     variant: str,
     parsed: Path,
     make_env: Callable[[], Env],
+    make_batch: Callable[[], BatchEnv] | None = None,
 ) -> tuple[AttemptJob, EpisodeStore]:
     """The job of generating ``variant`` of task ``spec`` as ``params`` say, from the parsed
     source demos at ``parsed`` (read whole, checked to carry the pose noise params give), on
-    envs from ``make_env``; and the parsed store."""
+    envs from ``make_env`` or batches of generate.num_envs scenes from ``make_batch``; and
+    the parsed store."""
     store = read_store(
         parsed,
         required=["target_pose", "gripper"] + [f"object_poses/{o}" for o in spec.objects],
@@ -174,7 +190,9 @@ def attempt_job(
         g.transit,
         g.planner,
     )
-    return AttemptJob(make_env, source_demos(store, spec.objects), spec, config, variant), store
+    sources = source_demos(store, spec.objects)
+    job = AttemptJob(make_env, sources, spec, config, variant, make_batch, g.num_envs)
+    return job, store
 
 
 def generation_run_id(params: Params, variant: str, store: EpisodeStore) -> str:
@@ -188,14 +206,16 @@ def generation_run_id(params: Params, variant: str, store: EpisodeStore) -> str:
     )
 
 
-def open_work_dir(out: Path, run: str, seeds: Sequence[int]) -> WorkDir:
+def open_work_dir(
+    out: Path, run: str, seeds: Sequence[int], block_size: int = ATTEMPTS_PER_BLOCK
+) -> WorkDir:
     """The work directory beside the output ``out`` where run ``run``'s finished blocks of
-    attempts go as they come back; a killed run started again with the same params, input
-    and code resumes there. Says what it discarded and what it resumes."""
+    ``block_size`` attempts go as they come back; a killed run started again with the same
+    params, input and code resumes there. Says what it discarded and what it resumes."""
     work = WorkDir.open(
         out,
-        f"{run}/{ATTEMPTS_PER_BLOCK}/{code_digest('mimicgen_pipe', 'envs')}",
-        AttemptBlockCodec(seeds),
+        f"{run}/{block_size}/{code_digest('mimicgen_pipe', 'envs')}",
+        AttemptBlockCodec(seeds, block_size),
     )
     for line in work.discarded:
         print(f"generate: {line}")
@@ -205,21 +225,27 @@ def open_work_dir(out: Path, run: str, seeds: Sequence[int]) -> WorkDir:
 
 
 BlockResult = list[tuple[int, Attempt, float]]  # a block's (seed, attempt, seconds)
-ATTEMPTS_PER_BLOCK = 16  # rebuilding a ManiSkill scene costs ~0.24 s, ~4% of a block
-_WORKER: tuple[AttemptJob, Env] | None = None
+_WORKER: tuple[AttemptJob, Env | BatchEnv] | None = None
 
 
 def _init_worker(job: AttemptJob) -> None:
     global _WORKER
-    _WORKER = (job, job.make_env())
+    _WORKER = (job, job.make_batch() if job.make_batch else job.make_env())
 
 
 def _run_block(seeds: list[int]) -> BlockResult:
-    """Attempts of one block, on a freshly rebuilt scene; seconds include the rebuild share."""
+    """Attempts of one block, on a freshly rebuilt scene; seconds include the rebuild share
+    (on a batch, each attempt's seconds are the block's over its attempts)."""
     assert _WORKER is not None
     job, env = _WORKER
     t0 = time.perf_counter()
     env.rebuild()
+    if job.make_batch is not None:
+        batch = cast(BatchEnv, env)
+        ended = dict(run_batched(batch, job.sources, job.spec, job.config, job.variant, seeds))
+        seconds = (time.perf_counter() - t0) / max(1, len(seeds))
+        return [(seed, ended[i], seconds) for i, seed in enumerate(seeds)]
+    env = cast(Env, env)
     share = (time.perf_counter() - t0) / max(1, len(seeds))
     out = []
     for seed in seeds:
@@ -230,15 +256,14 @@ def _run_block(seeds: list[int]) -> BlockResult:
 
 
 class AttemptBlocks(Sequence[list[int]]):
-    """The fixed blocks of ``seeds`` the attempts run in, ATTEMPTS_PER_BLOCK each (a resumed
-    run must cut them the same way); a block's seeds are read from ``seeds`` when the block
-    is."""
+    """The fixed blocks of ``seeds`` the attempts run in, ``size`` each (a resumed run must
+    cut them the same way); a block's seeds are read from ``seeds`` when the block is."""
 
-    def __init__(self, seeds: Sequence[int]) -> None:
-        self.seeds = seeds
+    def __init__(self, seeds: Sequence[int], size: int = ATTEMPTS_PER_BLOCK) -> None:
+        self.seeds, self.size = seeds, size
 
     def __len__(self) -> int:
-        return -(-len(self.seeds) // ATTEMPTS_PER_BLOCK)
+        return -(-len(self.seeds) // self.size)
 
     @overload
     def __getitem__(self, i: int) -> list[int]: ...
@@ -249,16 +274,16 @@ class AttemptBlocks(Sequence[list[int]]):
     def __getitem__(self, i: int | slice) -> list[int] | list[list[int]]:
         if isinstance(i, slice):
             return [self[k] for k in range(len(self))[i]]
-        start = range(len(self))[i] * ATTEMPTS_PER_BLOCK
-        return list(self.seeds[start : start + ATTEMPTS_PER_BLOCK])
+        start = range(len(self))[i] * self.size
+        return list(self.seeds[start : start + self.size])
 
     def __iter__(self) -> Iterator[list[int]]:
         return (self[k] for k in range(len(self)))
 
 
-def attempt_blocks(seeds: Sequence[int]) -> AttemptBlocks:
+def attempt_blocks(seeds: Sequence[int], size: int = ATTEMPTS_PER_BLOCK) -> AttemptBlocks:
     """The fixed blocks the attempts run in (a resumed run must cut them the same way)."""
-    return AttemptBlocks(seeds)
+    return AttemptBlocks(seeds, size)
 
 
 class AttemptBlockCodec:
@@ -278,8 +303,8 @@ class AttemptBlockCodec:
     }
     ARRAYS = ("source_demo", "initial_state", "initial_object_poses")  # per attempt, as is
 
-    def __init__(self, seeds: Sequence[int]) -> None:
-        self.blocks = attempt_blocks(seeds)
+    def __init__(self, seeds: Sequence[int], block_size: int = ATTEMPTS_PER_BLOCK) -> None:
+        self.blocks = attempt_blocks(seeds, block_size)
 
     def encode(self, index: int, result: BlockResult) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
@@ -346,7 +371,8 @@ def run_attempts(
     those an earlier run saved are reused. Stop consuming to stop early: the workers are
     gone when the generator is closed (or an exception, such as an interrupt, goes through
     it)."""
-    results = map_blocks(_run_block, attempt_blocks(seeds), executor, _init_worker, (job,), work)
+    blocks = attempt_blocks(seeds, job.block_size)
+    results = map_blocks(_run_block, blocks, executor, _init_worker, (job,), work)
     try:
         for block in results:
             yield from block

@@ -14,6 +14,25 @@ os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
 REPO = Path(__file__).resolve().parents[1]
 
 
+def same_attempt(a, b) -> bool:
+    """Whether two generation attempts are the same: seed, outcome, source demos, initial
+    state, and every step array (names in order, dtypes, values) bit for bit."""
+    import numpy as np
+
+    return (
+        a.seed == b.seed
+        and a.success == b.success
+        and a.failed_subtask == b.failed_subtask
+        and np.array_equal(a.source_demo, b.source_demo)
+        and np.array_equal(a.initial_state, b.initial_state)
+        and list(a.steps) == list(b.steps)
+        and all(
+            a.steps[k].dtype == b.steps[k].dtype and np.array_equal(a.steps[k], b.steps[k])
+            for k in a.steps
+        )
+    )
+
+
 def cli(
     *args: str, cwd: Path, check: bool = True, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess:

@@ -8,11 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mimicgen_pipe.batched import LockstepBatch, check_batch_size, run_batched
+from mimicgen_pipe.batched import LockstepBatch, run_batched
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.generation import Attempt, GenerationConfig, run_attempt
+from mimicgen_pipe.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.params import check_batch_size
 from mimicgen_pipe.runner import attempt_seed, source_demos
 from mimicgen_pipe.store import read_store
+from tests.conftest import same_attempt
 
 N_SEEDS, N_SLOTS = 7, 3
 
@@ -33,18 +35,6 @@ class Logged:
     def step(self, action: np.ndarray) -> None:
         self.steps += 1
         self.env.step(action)
-
-
-def same(a: Attempt, b: Attempt) -> bool:
-    return (
-        a.seed == b.seed
-        and a.success == b.success
-        and a.failed_subtask == b.failed_subtask
-        and np.array_equal(a.source_demo, b.source_demo)
-        and np.array_equal(a.initial_state, b.initial_state)
-        and a.steps.keys() == b.steps.keys()
-        and all(np.array_equal(a.steps[k], b.steps[k]) for k in a.steps)
-    )
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +78,7 @@ def test_a_lockstep_batch_makes_the_attempts_one_at_a_time_makes(setting):
         env.rebuild()
         for seed in ran:
             alone = run_attempt(env, sources, spec, config, "D0", seed)
-            assert same(alone, got[seeds.index(seed)]), f"seed {seed}"
+            assert same_attempt(alone, got[seeds.index(seed)]), f"seed {seed}"
 
 
 @pytest.mark.sim

@@ -46,6 +46,22 @@ def make_env(task: str, robot: str = "panda", lean_step: bool = True):
     return ManiSkillEnv(task, robot, lean_step)
 
 
+def check_batched(task: str, robot: str, num_envs: int, sim_backend: str | None) -> None:
+    """InputError for a batch ManiSkill cannot run (envs/maniskill/batch.py)."""
+    from envs.maniskill.batch import check_batched
+
+    check_robot(robot)
+    if robot != "panda":
+        raise InputError(f"robot {robot!r}: the batched ManiSkill form has the Panda only")
+    check_batched(load_task(task), sim_backend or "physx_cpu", num_envs)
+
+
+def make_batch(task: str, robot: str, num_envs: int, sim_backend: str | None):
+    from envs.maniskill.batch import ManiSkillBatch
+
+    return ManiSkillBatch(task, num_envs, sim_backend or "physx_cpu", robot)
+
+
 def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_dir: Path):
     from envs.maniskill import source
 

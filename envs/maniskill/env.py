@@ -294,7 +294,7 @@ class ManiSkillEnv:
         info = self._evaluation()
         if self._lean:
             return {k: v for k, v in info.items() if k != "success"}
-        return self.task.signals(self._u, info)
+        return {name: bool(v) for name, v in self.task.signals(self._u, info).items()}
 
     def is_success(self) -> bool:
         return bool(self._evaluation()["success"])

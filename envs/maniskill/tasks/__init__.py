@@ -23,12 +23,10 @@ ROBOTS = ("panda",)
 CREATION_SEED = 2022  # the seed ManiSkill builds every env's scene with at creation
 
 
-def cube_on_cube_signals(env, info: dict) -> dict[str, bool]:
-    """StackCube-v1's subtask signals from its ``evaluate()`` info (cube A on cube B)."""
-    return {
-        "grasp_cubeA": bool(info["is_cubeA_grasped"]),
-        "cubeA_on_cubeB": bool(info["is_cubeA_on_cubeB"]),
-    }
+def cube_on_cube_signals(env, info: dict) -> dict[str, Any]:
+    """StackCube-v1's subtask signals from its ``evaluate()`` info (cube A on cube B), one
+    per scene."""
+    return {"grasp_cubeA": info["is_cubeA_grasped"], "cubeA_on_cubeB": info["is_cubeA_on_cubeB"]}
 
 
 def cube_on_cube_evaluate(env) -> dict[str, bool]:
@@ -58,7 +56,8 @@ class ManiSkillTask:
     objects: spec object name -> attribute of the ManiSkill env holding the actor.
     signals: (env, info) -> {signal name: bool}: the subtask signals from ManiSkill's
         ``evaluate()`` info and the unwrapped env (e.g. ``env.agent.is_grasping``): the stock
-        step's (``maniskill.lean_step: false``).
+        step's (``maniskill.lean_step: false``). A batched task gives each signal as a
+        (num_envs,) bool tensor, one entry per scene.
     evaluate: env -> {signal name: bool, ..., "success": bool}: the same signals and
         ManiSkill's success, from poses and contacts read straight from SAPIEN
         (envs/maniskill/lean.py): the lean step's, called only when asked.
@@ -96,6 +95,9 @@ class ManiSkillTask:
         creation scene, seed 2022, which such a task must also rebuild with), and in
         another scene the pose that puts the frame where the source scene's box, say, has
         its hole, so that a segment carried in the object's frame follows the frame.
+    batched: the task has a batched form (envs/maniskill/batch.py, generate.num_envs): its
+        reset draws every scene it is given, its signals are per scene, and its scene and
+        frames are the same in every scene of a batch (no per-build geometry, no frames).
     """
 
     spec: TaskSpec
@@ -113,6 +115,7 @@ class ManiSkillTask:
     frames: dict[str, Callable[[Any], Any]] = field(default_factory=dict)
     restore: Callable[[Any], None] | None = None
     load_scene: Callable[[Any], None] | None = None
+    batched: bool = False
 
     def __post_init__(self) -> None:
         if self.frames and self.rebuild_seed != CREATION_SEED:

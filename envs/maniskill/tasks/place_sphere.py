@@ -31,8 +31,8 @@ from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, Task
 F32 = np.float32
 
 
-def signals(env, info: dict) -> dict[str, bool]:
-    return {"grasp_sphere": bool(info["is_obj_grasped"])}
+def signals(env, info: dict) -> dict[str, Any]:
+    return {"grasp_sphere": info["is_obj_grasped"]}
 
 
 def evaluate(env) -> dict[str, bool]:
@@ -147,4 +147,5 @@ TASK = ManiSkillTask(
     objects={"sphere": "obj", "bin": "bin"},
     signals=signals,
     evaluate=evaluate,
+    batched=True,
 )

@@ -18,6 +18,7 @@ Reset variants (world frame; the table centre is the origin, the Panda base at x
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -28,8 +29,8 @@ DEG = math.pi / 180
 BACK = 180 * DEG
 
 
-def signals(env, info: dict) -> dict[str, bool]:
-    return {"grasp_charger": bool(env.agent.is_grasping(env.charger))}
+def signals(env, info: dict) -> dict[str, Any]:
+    return {"grasp_charger": env.agent.is_grasping(env.charger)}
 
 
 def evaluate(env) -> dict[str, bool]:
@@ -108,4 +109,5 @@ TASK = ManiSkillTask(
     panda_uid="panda_wristcam",  # the only robot the task supports and resets
     initialize=initialize,
     restore=restore,
+    batched=True,
 )

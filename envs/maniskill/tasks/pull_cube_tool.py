@@ -14,6 +14,7 @@ Reset variants (world frame; the table centre is the origin, the Panda base at x
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -25,8 +26,8 @@ F32 = np.float32
 DEG = math.pi / 180
 
 
-def signals(env, info: dict) -> dict[str, bool]:
-    return {"grasp_tool": bool(env.agent.is_grasping(env.l_shape_tool))}
+def signals(env, info: dict) -> dict[str, Any]:
+    return {"grasp_tool": env.agent.is_grasping(env.l_shape_tool)}
 
 
 def evaluate(env) -> dict[str, bool]:
@@ -74,4 +75,5 @@ TASK = ManiSkillTask(
     objects={"tool": "l_shape_tool", "cube": "cube"},
     signals=signals,
     evaluate=evaluate,
+    batched=True,
 )

@@ -73,4 +73,5 @@ TASK = ManiSkillTask(
     signals=cube_on_cube_signals,
     evaluate=cube_on_cube_evaluate,
     initialize=initialize,
+    batched=True,
 )
