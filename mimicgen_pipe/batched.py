@@ -123,3 +123,30 @@ def run_batched(
             except StopIteration as done:
                 yield index, done.value
                 yield from start(k)
+
+
+def replay_batched(
+    batch: BatchEnv, episodes: Sequence[tuple[np.ndarray, np.ndarray]]
+) -> list[bool]:
+    """Whether each episode, (initial state (the back end's get_state()), actions (T, 7)),
+    succeeds when its actions are replayed from its state, ``batch.num_envs`` episodes at a
+    time on the slots of ``batch``: the task's success after each episode's last action."""
+    out: list[bool] = []
+    for start in range(0, len(episodes), batch.num_envs):
+        group = episodes[start : start + batch.num_envs]
+        for k, (state, _) in enumerate(group):
+            batch.slot(k).set_state(state)
+        lengths = [len(a) for _, a in group]
+        success = [False] * len(group)
+        actions = np.zeros((batch.num_envs, 7), dtype=np.float32)
+        for t in range(max(lengths, default=0)):
+            active = np.zeros(batch.num_envs, dtype=bool)
+            for k, (_, a) in enumerate(group):
+                if t < lengths[k]:
+                    actions[k], active[k] = a[t], True
+            batch.step(actions, active)
+            for k in range(len(group)):
+                if t == lengths[k] - 1:
+                    success[k] = bool(batch.slot(k).is_success())
+        out += success
+    return out

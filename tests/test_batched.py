@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mimicgen_pipe.batched import LockstepBatch, run_batched
+from mimicgen_pipe.batched import LockstepBatch, replay_batched, run_batched
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.generation import GenerationConfig, run_attempt
 from mimicgen_pipe.params import check_batch_size
@@ -110,3 +110,43 @@ def test_a_batch_size_that_is_not_a_positive_integer_is_refused(size):
 def test_an_empty_lockstep_batch_is_refused():
     with pytest.raises(InputError, match="not 0"):
         LockstepBatch(())
+
+
+class CountingBatch:
+    """A batch without a simulator: each slot's state is the sum of the actions it stepped
+    since its state was set; an episode succeeds when it ends where the sum of its own
+    actions says it should."""
+
+    def __init__(self, num_envs: int) -> None:
+        self.num_envs = num_envs
+        self.sums = np.zeros((num_envs, 7))
+        self.slots = [CountingSlot(self, k) for k in range(num_envs)]
+
+    def slot(self, k: int) -> CountingSlot:
+        return self.slots[k]
+
+    def step(self, actions: np.ndarray, active: np.ndarray) -> None:
+        self.sums[active] += actions[active]
+
+
+class CountingSlot:
+    def __init__(self, batch: CountingBatch, k: int) -> None:
+        self.batch, self.k, self.goal = batch, k, None
+
+    def set_state(self, state: np.ndarray) -> None:
+        self.batch.sums[self.k] = 0.0
+        self.goal = state
+
+    def is_success(self) -> bool:
+        return bool(np.allclose(self.batch.sums[self.k], self.goal))
+
+
+def test_replay_runs_episodes_of_any_length_num_envs_at_a_time():
+    rng = np.random.default_rng(0)
+    episodes = []
+    for n in (5, 1, 9, 3, 7):  # lengths differ within each group of 2
+        actions = rng.standard_normal((n, 7)).astype(np.float32)
+        goal = actions.astype(np.float64).sum(axis=0)
+        episodes.append((goal if n != 3 else goal + 1.0, actions))  # the 3-step one misses
+    assert replay_batched(CountingBatch(2), episodes) == [True, True, True, False, True]
+    assert replay_batched(CountingBatch(8), episodes) == [True, True, True, False, True]

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 import envs
-from mimicgen_pipe.batched import run_batched
+from mimicgen_pipe.batched import replay_batched, run_batched
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.generation import GenerationConfig, run_attempt
@@ -62,6 +62,18 @@ def test_a_batch_of_one_on_the_cpu_makes_the_stock_steps_attempts(sources, one_a
     assert sorted(got) == list(range(N_SEEDS))
     assert all(same_attempt(got[i], expected[i]) for i in range(N_SEEDS))
     assert any(a.success for a in expected)  # a check of something that happened
+
+
+def test_kept_attempts_replay_to_success_on_the_batch(one_at_a_time):
+    _, attempts = one_at_a_time
+    kept = [(a.initial_state, a.steps["actions"]) for a in attempts if a.success]
+    batch = envs.make_batch_env("maniskill", TASK, "panda", 1, "physx_cpu")
+    try:
+        assert replay_batched(batch, kept) == [True] * len(kept)
+        # the last replay left the scene where its episode ended: not where it began
+        assert not np.array_equal(batch.slot(0).get_state(), kept[-1][0])
+    finally:
+        batch.close()
 
 
 def test_generate_runs_blocks_on_the_batch(sources, one_at_a_time):

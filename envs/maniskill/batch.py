@@ -223,6 +223,8 @@ class _Slot:
         idx = torch.tensor([self.k], device=b._u.device)
         s = torch.as_tensor(np.asarray(state, np.float32)[None], device=b._u.device)
         b._u.set_state(s, idx)
+        if b.task.restore:  # what the task derives from poses outside the state (a goal)
+            b.task.restore(b._u)
         b._changed()
 
     def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray:
