@@ -89,10 +89,7 @@ def run(args: argparse.Namespace) -> None:
     g = params.generate
     envs.check_robot(params.backend, g.robot)
     envs.check_transit(params.backend, g.robot, g.transit)
-    sim_backend = params.maniskill.sim_backend if params.backend == "maniskill" else None
-    batched = g.num_envs > 1 or sim_backend == "physx_cuda"
-    if batched:
-        envs.check_batched(params.backend, params.task, g.robot, g.num_envs, sim_backend, g.transit)
+    make_batch = envs.generation_batches(params)  # refuses a batch it cannot run
     executor = stage_executor(params, "generate")  # refuses unsafe Ray settings before any work
     parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
     out = Path(args.out or layout.generated_store(params.task, args.variant))
@@ -107,13 +104,6 @@ def run(args: argparse.Namespace) -> None:
     )
     make_env = functools.partial(
         envs.make_env, params.backend, params.task, g.robot, params.maniskill.lean_step
-    )
-    make_batch = (
-        functools.partial(
-            envs.make_batch_env, params.backend, params.task, g.robot, g.num_envs, sim_backend
-        )
-        if batched
-        else None
     )
     job, store = attempt_job(params, spec, args.variant, parsed_path, make_env, make_batch)
     seeds = AttemptSeeds(g.seed, args.variant, g.max_attempts)  # each computed when needed
