@@ -104,11 +104,17 @@ def check_robot(backend: str, robot: str) -> None:
     backend_package(backend).check_robot(robot)
 
 
-def check_transit(backend: str, robot: str, transit: str) -> None:
+def check_transit(backend: str, robot: str, transit: str, arms: int = 1) -> None:
     """InputError for ``transit`` "planned" where ``robot`` on ``backend`` has no motion
-    planner (a back end's ``PLANNER_ROBOTS``: the arms it plans for; none when absent)."""
+    planner (a back end's ``PLANNER_ROBOTS``: the arms it plans for; none when absent), or
+    for a task of several ``arms`` (a planner plans for one)."""
     if transit != "planned":
         return
+    if arms > 1:
+        raise InputError(
+            f"generate.transit: planned: the task has {arms} arms and the motion planner plans "
+            "for one; use transit: linear"
+        )
     arms = getattr(backend_package(backend), "PLANNER_ROBOTS", ())
     if robot not in arms:
         where = (

@@ -11,12 +11,12 @@ import numpy as np
 
 from mimicgen_pipe import poses
 from mimicgen_pipe.controller import clip_actions
-from mimicgen_pipe.observations import observation_values
+from mimicgen_pipe.observations import arms_observation_values, observation_values
 from mimicgen_pipe.pose_noise import PoseNoise, generation_rng, perturb_pose
 from mimicgen_pipe.registry import load
 from mimicgen_pipe.segments import segment_bounds
 from mimicgen_pipe.selection import Candidates
-from mimicgen_pipe.taskspec import TaskSpec
+from mimicgen_pipe.taskspec import ARM, TaskSpec
 from mimicgen_pipe.transit import PlannerSettings, approach_start
 
 
@@ -68,6 +68,29 @@ class Env(Protocol):
         """(K,) bool: whether the arm has an IK solution for each TCP target (K, 4, 4)."""
 
     def close(self) -> None: ...
+
+
+class ArmEnv(Protocol):
+    """One arm of an env: what the generator reads and commands per arm. Poses are 4x4 in
+    the world frame [m]; an action is the arm's 7: translation, rotation, gripper."""
+
+    def eef_pose(self) -> np.ndarray: ...
+
+    def gripper_state(self) -> np.ndarray: ...
+
+    def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray: ...
+
+    def action_to_target_pose(self, action: np.ndarray) -> np.ndarray: ...
+
+    def reachable(self, targets: np.ndarray) -> np.ndarray: ...
+
+
+class MultiArmEnv(Env, Protocol):
+    """An env of a task with several arms (TaskSpec.arms): its ``step`` takes 7 action
+    entries per arm, in the task's arm order; the scene's reads are the env's own, each
+    arm's are ``arm(name)``'s."""
+
+    def arm(self, name: str) -> ArmEnv: ...
 
 
 class PlanningEnv(Env, Protocol):
@@ -170,14 +193,16 @@ class GenerationConfig:
 class SourceDemos:
     """Parsed source demos, concatenated over episodes.
 
-    target_poses: (S, 4, 4) controller targets, world frame. gripper: (S,) gripper actions.
+    target_poses: arm -> (S, 4, 4) the arm's controller targets, world frame. gripper: arm ->
+    (S,) the arm's gripper actions. A one-arm task's arm is taskspec.ARM.
     object_poses: object name -> (S, 4, 4) world poses observed before each step.
-    episode_ends: (N,) cumulative exclusive ends. term_index: (N, M-1) detected subtask ends,
+    episode_ends: (N,) cumulative exclusive ends. term_index: (N, K) detected ends of the K
+    subtasks with a term signal (every arm's but its last), in the task's subtask order,
     relative to each episode's start.
     """
 
-    target_poses: np.ndarray
-    gripper: np.ndarray
+    target_poses: Mapping[str, np.ndarray]
+    gripper: Mapping[str, np.ndarray]
     object_poses: Mapping[str, np.ndarray]
     episode_ends: np.ndarray
     term_index: np.ndarray
@@ -190,10 +215,27 @@ class SourceDemos:
     def lengths(self) -> np.ndarray:
         return np.diff(np.concatenate([[0], self.episode_ends]))
 
+    def segment_bounds(self, spec: TaskSpec, offsets: np.ndarray) -> dict[str, np.ndarray]:
+        """Arm -> (N, M_arm, 2) [start, end) steps of each demo's segments of the arm's
+        subtasks, relative to the demo's start, with ``offsets`` (K,) (one per term signal,
+        as term_index's columns) added to the detected ends."""
+        column = {i: c for c, i in enumerate(spec.ending_subtasks)}
+        out = {}
+        for arm in spec.arms:
+            cols = [column[i] for i in spec.arm_indices(arm)[:-1]]
+            out[arm] = np.stack(
+                [
+                    segment_bounds(self.term_index[j, cols], offsets[cols], int(n))
+                    for j, n in enumerate(self.lengths)
+                ]
+            )
+        return out
+
 
 @dataclass
 class Attempt:
-    """One generation attempt: per-step arrays (T, ...) and per-episode fields."""
+    """One generation attempt: per-step arrays (T, ...) and per-episode fields. Subtasks are
+    indexed in the task's order (every arm's, TaskSpec.subtasks)."""
 
     seed: int  # the attempt's reset seed
     steps: dict[str, np.ndarray]
@@ -227,6 +269,19 @@ def run_attempt(
 AttemptActions = Generator[np.ndarray, None, Attempt]
 
 
+@dataclass
+class _Segment:
+    """An arm's transformed segment being executed: subtask ``index`` (the task's order),
+    its targets (K, 4, 4) world, gripper commands (K,), action noise (K, 6), and the next
+    step ``k``."""
+
+    index: int
+    targets: np.ndarray
+    grips: np.ndarray
+    noise: np.ndarray
+    k: int = 0
+
+
 def attempt_actions(
     env: Env,
     sources: SourceDemos,
@@ -236,99 +291,185 @@ def attempt_actions(
     seed: int,
 ) -> AttemptActions:
     """One generation attempt as a coroutine that steps nothing itself: it yields each
-    control step's action ((7,) float32) and is resumed once ``env`` has stepped it (alone,
-    or as one slot of a batch stepped together, mimicgen_pipe.batched); it returns the
-    Attempt.
+    control step's action (float32, 7 per arm) and is resumed once ``env`` has stepped it
+    (alone, or as one slot of a batch stepped together, mimicgen_pipe.batched); it returns
+    the Attempt.
 
-    The attempt (paper Fig. 2): reset the scene, then for each subtask select a source demo,
-    transform its segment to the reference object's current pose, prepend the interpolation
-    from the current end-effector pose, and execute it as noisy delta-pose actions. Success
-    is the task's success after the last step. An attempt whose next targets the arm cannot
-    reach (env.reachable) stops there, as an IK failure of that subtask; with planned
-    transit, one whose transit the planner cannot find stops there too, as a planner failure
-    of that subtask. Everything drawn (scene, source demos, offsets, noise) comes from
-    ``seed`` alone."""
+    The attempt (paper Fig. 2): reset the scene, then for each subtask of each arm select a
+    source demo, transform its segment to the reference object's current pose, prepend the
+    interpolation from the arm's current end-effector pose, and execute it as noisy
+    delta-pose actions. Each arm goes through its own subtasks; one whose next subtask must
+    wait (a sequential constraint whose first subtask has not ended, or a coordinated
+    partner not yet ready) holds its pose. Coordinated subtasks start together, follow one
+    source demo selected once, transformed by one observed pose of their shared reference
+    object, and end together (the shorter segment holds its last target). Success is the
+    task's success after the last step. An attempt whose next targets an arm cannot reach
+    (reachable) stops there, as an IK failure of that subtask; with planned transit, one
+    whose transit the planner cannot find stops there too, as a planner failure of that
+    subtask. Everything drawn (scene, source demos, offsets, noise) comes from ``seed``
+    alone, in the order the subtasks start."""
     rng = np.random.default_rng(seed)
     pose_rng = generation_rng(seed)
     env.reset(seed=seed, variant=variant)
     initial_state = env.get_state()
     obj_now = env.object_poses()
     initial_object_poses = np.stack([obj_now[o] for o in spec.objects])
-    offsets = [
-        int(rng.integers(s.term_offset_range[0], s.term_offset_range[1] + 1))
-        for s in spec.subtasks[:-1]
-    ]
-    starts, lengths = sources.episode_starts, sources.lengths
-    bounds = np.stack(
+    offsets = np.array(
         [
-            segment_bounds(sources.term_index[j], offsets, int(lengths[j]))
-            for j in range(len(lengths))
-        ]
-    )  # (N, M, 2)
+            int(rng.integers(spec.subtasks[i].term_offset_range[0],
+                             spec.subtasks[i].term_offset_range[1] + 1))
+            for i in spec.ending_subtasks
+        ],
+        dtype=np.int64,
+    )  # fmt: skip
+    starts = sources.episode_starts
+    bounds = sources.segment_bounds(spec, offsets)  # arm -> (N, M_arm, 2)
+    arms = arm_envs(env, spec.arms)
+    order = {arm: spec.arm_indices(arm) for arm in spec.arms}  # arm -> its subtasks' indices
+    after, partner = constraint_maps(spec)
 
-    recorder = StepRecorder(spec.objects)
+    recorder = StepRecorder(spec.objects, spec.arms)
     chosen = np.full(len(spec.subtasks), -1, dtype=np.int64)
     reached = np.zeros(len(spec.subtasks), dtype=bool)
-    demo = -1
+    ended = np.zeros(len(spec.subtasks), dtype=bool)
+    demo = dict.fromkeys(spec.arms, -1)
+    running: dict[str, _Segment | None] = dict.fromkeys(spec.arms)
+    done = dict.fromkeys(spec.arms, 0)  # subtasks each arm has finished
+    hold: dict[str, tuple[np.ndarray, float]] = {}  # a waiting arm's target and gripper
+    started = np.full(len(spec.subtasks), len(spec.subtasks))  # the order subtasks started in
     ik_failed = planner_failed = False
-    for i, sub in enumerate(spec.subtasks):
-        # the reference object's pose as a pose estimator reports it (paper T); the simulator's
-        # true poses are untouched, and they are what gets recorded
+
+    def waiting(arm: str) -> int | None:
+        """The subtask ``arm`` starts next if it may start now, else None."""
+        if running[arm] is not None or done[arm] == len(order[arm]):
+            return None
+        i = order[arm][done[arm]]
+        return i if all(ended[j] for j in after[i]) else None
+
+    def segment(arm: str, i: int, ref_now: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Subtask i's segment of source demo j, carried to ``ref_now``: targets, grippers."""
+        sub = spec.subtasks[i]
+        s, e = starts[j] + bounds[arm][j, order[arm].index(i)]
+        seg = transform_segment(
+            sources.target_poses[arm][s:e], sources.object_poses[sub.reference_object][s], ref_now
+        )
+        return seg, sources.gripper[arm][s:e]
+
+    def start(group: list[tuple[str, int]]) -> bool:
+        """Start subtasks ``group`` (one, or coordinated ones) on their arms; False when an
+        arm cannot reach its targets or no transit is found."""
+        nonlocal ik_failed, planner_failed
+        lead_arm, lead = group[0]
+        sub = spec.subtasks[lead]
+        # the reference object's pose as a pose estimator reports it (paper T); the
+        # simulator's true poses are untouched, and they are what gets recorded
         ref_now = perturb_pose(obj_now[sub.reference_object], config.pose_noise, pose_rng)
-        if demo < 0 or config.per_subtask:
-            seg_starts = starts + bounds[:, i, 0]
+        if demo[lead_arm] < 0 or config.per_subtask or len(group) > 1:
+            seg_starts = starts + bounds[lead_arm][:, order[lead_arm].index(lead), 0]
             src_objects = sources.object_poses[sub.reference_object][seg_starts]
             candidates = Candidates(
                 src_objects,
                 ref_now,
-                transform_segment(sources.target_poses[seg_starts], src_objects, ref_now),
-                env.eef_pose(),
+                transform_segment(sources.target_poses[lead_arm][seg_starts], src_objects, ref_now),
+                arms[lead_arm].eef_pose(),
             )
-            demo = select_source(config.selection, candidates, rng, config.nn_k)
-        chosen[i] = demo
-        s, e = starts[demo] + bounds[demo, i]
-        seg = transform_segment(
-            sources.target_poses[s:e], sources.object_poses[sub.reference_object][s], ref_now
-        )
-        grip = sources.gripper[s:e]
-        if config.transit == "planned":
-            k = approach_start(seg, ref_now, config.planner.approach_distance)
-            seg, grip = seg[k:], grip[k:]
-            path, _ = cast(PlanningEnv, env).plan_transit(seg[0], config.planner, rng)
-            if path is None:
-                planner_failed = True
+            picked = select_source(config.selection, candidates, rng, config.nn_k)
+            for arm, _ in group:
+                demo[arm] = picked
+        plans = []
+        for arm, i in group:
+            chosen[i] = demo[arm]
+            started[i] = int(np.count_nonzero(chosen >= 0))
+            seg, grip = segment(arm, i, ref_now, demo[arm])
+            if config.transit == "planned":
+                k = approach_start(seg, ref_now, config.planner.approach_distance)
+                seg, grip = seg[k:], grip[k:]
+                path, _ = cast(PlanningEnv, env).plan_transit(seg[0], config.planner, rng)
+                if path is None:
+                    planner_failed = True
+                    return False
+                interp = np.concatenate([path, np.repeat(seg[:1], config.n_fixed, axis=0)])
+            else:
+                eef = arms[arm].eef_pose()
+                interp = interpolation(eef, seg[0], config.n_interp, config.n_fixed)
+            targets = np.concatenate([interp, seg])
+            grips = np.concatenate([np.full(len(interp), grip[0]), grip])
+            if not arms[arm].reachable(targets).all():
+                ik_failed = True
+                return False
+            plans.append((arm, i, targets, grips))
+        steps = max(len(t) for _, _, t, _ in plans)
+        for arm, i, targets, grips in plans:
+            # step-aligned: a coordinated segment shorter than its partner's holds its end
+            pad = steps - len(targets)
+            targets = np.concatenate([targets, np.repeat(targets[-1:], pad, axis=0)])
+            grips = np.concatenate([grips, np.repeat(grips[-1:], pad)])
+            sigma = np.full(len(targets), config.action_noise)
+            radius = spec.subtasks[i].noise_free_radius
+            if radius is not None:
+                near = np.linalg.norm(targets[:, :3, 3] - ref_now[:3, 3], axis=-1)
+                sigma[near <= radius] = 0.0
+            running[arm] = _Segment(i, targets, grips, action_noise(sigma, rng))
+        return True
+
+    while True:
+        for arm in spec.arms:
+            i = waiting(arm)
+            if i is None:
+                continue
+            group = [(arm, i)]
+            if i in partner:
+                j = partner[i]
+                other = spec.subtasks[j].arm
+                if waiting(other) != j:
+                    continue  # its partner is not ready: hold
+                group.append((other, j))
+            if not start(group):
                 break
-            interp = np.concatenate([path, np.repeat(seg[:1], config.n_fixed, axis=0)])
-        else:
-            interp = interpolation(env.eef_pose(), seg[0], config.n_interp, config.n_fixed)
-        targets = np.concatenate([interp, seg])
-        grips = np.concatenate([np.full(len(interp), grip[0]), grip])
-        if not env.reachable(targets).all():
-            ik_failed = True
-            break
-        sigma = np.full(len(targets), config.action_noise)
-        if sub.noise_free_radius is not None:
-            near = np.linalg.norm(targets[:, :3, 3] - ref_now[:3, 3], axis=-1)
-            sigma[near <= sub.noise_free_radius] = 0.0
-        noise = action_noise(sigma, rng)
-        for k in range(len(targets)):
-            eef = env.eef_pose()
-            action = add_action_noise(env.target_pose_to_action(targets[k], grips[k]), noise[k])
-            action = clip_actions(action).astype(np.float32)
-            sig = recorder.record(env, eef, obj_now, action, targets[k])
-            if sub.term_signal is not None and sig[sub.term_signal]:
+        if ik_failed or planner_failed or all(s is None for s in running.values()):
+            break  # stopped, or every arm has done its subtasks (a checked spec cannot stall)
+        eefs, targets, parts = {}, {}, []
+        for arm, a in arms.items():
+            eefs[arm] = a.eef_pose()
+            seg = running[arm]
+            if seg is None:  # waiting: hold where its last segment ended (or where it began)
+                targets[arm], grip = hold.get(arm) or (eefs[arm], _first_grip(sources, arm))
+                hold[arm] = (targets[arm], grip)
+                parts.append(clip_actions(a.target_pose_to_action(targets[arm], grip)))
+                continue
+            targets[arm] = seg.targets[seg.k]
+            action = add_action_noise(a.target_pose_to_action(targets[arm], seg.grips[seg.k]),
+                                      seg.noise[seg.k])  # fmt: skip
+            parts.append(clip_actions(action))
+        action = (parts[0] if len(parts) == 1 else np.concatenate(parts)).astype(np.float32)
+        active = {arm: s.index for arm, s in running.items() if s is not None}
+        sig = recorder.record(env, eefs, obj_now, action, targets, active)
+        for i in active.values():
+            term = spec.subtasks[i].term_signal
+            if term is not None and sig[term]:
                 reached[i] = True
-            yield action
-            obj_now = env.object_poses()
-        if sub.term_signal is not None and env.subtask_signals()[sub.term_signal]:
-            reached[i] = True
+        yield action
+        obj_now = env.object_poses()
+        for arm, seg in running.items():
+            if seg is None:
+                continue
+            seg.k += 1
+            if seg.k < len(seg.targets):
+                continue
+            term = spec.subtasks[seg.index].term_signal
+            if term is not None and env.subtask_signals()[term]:
+                reached[seg.index] = True
+            ended[seg.index] = True
+            hold[arm] = (seg.targets[-1], float(seg.grips[-1]))
+            running[arm], done[arm] = None, done[arm] + 1
     success = not (ik_failed or planner_failed) and bool(env.is_success())
-    reached[-1] = success
-    failed = -1 if success else int(np.argmin(reached))
-    steps = recorder.arrays()
+    final = np.zeros(len(spec.subtasks), dtype=bool)
+    for arm in spec.arms:
+        final[order[arm][-1]], reached[order[arm][-1]] = True, success
+    failed = -1 if success else first_failure(reached, started, final)
     return Attempt(
         seed,
-        steps,
+        recorder.arrays(),
         success,
         failed,
         ik_failed,
@@ -339,68 +480,130 @@ def attempt_actions(
     )
 
 
+def first_failure(reached: np.ndarray, started: np.ndarray, final: np.ndarray) -> int:
+    """The subtask an unsuccessful attempt is charged with, of those not achieved
+    (``reached`` (M,) False): one with a term signal before an arm's final one (``final``),
+    then the one that started first (``started``: their order, a subtask never started
+    after all that did), then the task's order. With one arm: the first not achieved."""
+    return int(min(np.flatnonzero(~reached), key=lambda i: (final[i], started[i], i)))
+
+
+def _first_grip(sources: SourceDemos, arm: str) -> float:
+    """The gripper command an arm holds before its first subtask: the source demos' first."""
+    return float(sources.gripper[arm][0])
+
+
+def constraint_maps(spec: TaskSpec) -> tuple[dict[int, list[int]], dict[int, int]]:
+    """Subtask index -> the subtasks that must end before it starts (sequential
+    constraints), and subtask index -> its coordinated partner, both ways."""
+    index = {(s.arm, s.name): i for i, s in enumerate(spec.subtasks)}
+    after: dict[int, list[int]] = {i: [] for i in range(len(spec.subtasks))}
+    partner: dict[int, int] = {}
+    for c in spec.constraints:
+        a, b = index[c.first], index[c.second]
+        if c.kind == "sequential":
+            after[b].append(a)
+        else:
+            partner[a], partner[b] = b, a
+    return after, partner
+
+
+def arm_envs(env: Env, arms: tuple[str, ...]) -> dict[str, ArmEnv]:
+    """Each of a task's ``arms`` as what moves it: a one-arm env is its own arm; an env of
+    several has ``arm(name)``."""
+    if len(arms) == 1:
+        return {arms[0]: env}
+    return {arm: cast(MultiArmEnv, env).arm(arm) for arm in arms}
+
+
 def reachable_scenes(
     env: Env, sources: SourceDemos, spec: TaskSpec, variant: str, seeds: list[int]
 ) -> int:
-    """How many of the scenes reset from ``seeds`` the arm can work in: every target of the
+    """How many of the scenes reset from ``seeds`` the arms can work in: every target of the
     first source demo's segments, moved to the scene's initial object poses, has an IK
     solution. A cheap check of a robot's workspace before generating."""
-    bounds = segment_bounds(
-        sources.term_index[0], [0] * (len(spec.subtasks) - 1), int(sources.lengths[0])
-    )
+    bounds = sources.segment_bounds(spec, np.zeros(len(spec.ending_subtasks), np.int64))
     start = int(sources.episode_starts[0])
+    arms = arm_envs(env, spec.arms)
     ok = 0
     for seed in seeds:
         env.reset(seed=seed, variant=variant)
         obj = env.object_poses()
-        targets = [
-            transform_segment(
-                sources.target_poses[start + b0 : start + b1],
-                sources.object_poses[sub.reference_object][start + b0],
-                obj[sub.reference_object],
-            )
-            for sub, (b0, b1) in zip(spec.subtasks, bounds, strict=True)
-        ]
-        ok += bool(env.reachable(np.concatenate(targets)).all())
+        fine = True
+        for arm, a in arms.items():
+            targets = [
+                transform_segment(
+                    sources.target_poses[arm][start + b0 : start + b1],
+                    sources.object_poses[spec.subtasks[i].reference_object][start + b0],
+                    obj[spec.subtasks[i].reference_object],
+                )
+                for i, (b0, b1) in zip(spec.arm_indices(arm), bounds[arm][0], strict=True)
+            ]
+            fine = fine and bool(a.reachable(np.concatenate(targets)).all())
+        ok += fine
     return ok
+
+
+def arm_key(key: str, arm: str) -> str:
+    """The name of an arm's step array ``key`` (eef_pose, target_pose, gripper): the key
+    itself for a one-arm task's arm, ``<key>/<arm>`` for one of several."""
+    return key if arm == ARM else f"{key}/{arm}"
 
 
 class StepRecorder:
     """Collects the per-step record of an episode, observed before each step's action:
     actions, eef_pose, target_pose, gripper, env_state, object_poses/<obj>,
     subtask_signals/<name>, and the policy observation obs/<key> (mimicgen_pipe.observations).
-    One list per array, its names fixed at the first step.
+    With several arms, each arm's eef_pose, target_pose and gripper as ``<key>/<arm>``
+    (arm_key) and ``subtask/<arm>``, the subtask it runs (-1: holding). One list per array,
+    its names fixed at the first step.
     """
 
-    def __init__(self, objects: tuple[str, ...]) -> None:
-        self.objects = objects
+    def __init__(self, objects: tuple[str, ...], arms: tuple[str, ...] = (ARM,)) -> None:
+        self.objects, self.arms = objects, arms
         self.columns: dict[str, list] = {}
 
     def record(
         self,
         env: Env,
-        eef: np.ndarray,
+        eefs: Mapping[str, np.ndarray],
         object_poses: Mapping[str, np.ndarray],
         action: np.ndarray,
-        target: np.ndarray,
+        targets: Mapping[str, np.ndarray],
+        active: Mapping[str, int] | None = None,
     ) -> dict[str, bool]:
-        """Append one step; returns the subtask signals it recorded."""
+        """Append one step: the arms' end-effector poses and targets (arm -> pose), and with
+        several arms each one's subtask (``active``: arm -> subtask index, an arm without
+        one holding); returns the subtask signals it recorded."""
         sig = env.subtask_signals()
-        obs = observation_values(eef, env.gripper_state(), object_poses, self.objects)
+        several = len(self.arms) > 1
+        if several:
+            arms = arm_envs(env, self.arms)
+            grippers = {arm: arms[arm].gripper_state() for arm in self.arms}
+            obs = arms_observation_values(eefs, grippers, object_poses, self.objects)
+            own = [eefs[a] for a in self.arms] + [targets[a] for a in self.arms]
+            own += [(active or {}).get(a, -1) for a in self.arms]
+        else:
+            eef = eefs[self.arms[0]]
+            obs = observation_values(eef, env.gripper_state(), object_poses, self.objects)
+            own = [eef, targets[self.arms[0]]]
         values = (
             action,
-            eef,
-            target,
+            *own,
             env.get_state(),
             *(object_poses[o] for o in self.objects),
             *sig.values(),
             *obs.values(),
         )
         if not self.columns:
-            names = ("actions", "eef_pose", "target_pose", "env_state")
-            names += tuple(f"object_poses/{o}" for o in self.objects)
-            names += tuple(f"subtask_signals/{n}" for n in sig)
-            names += tuple(f"obs/{k}" for k in obs)
+            names = ["actions"]
+            names += [arm_key("eef_pose", a) for a in self.arms]
+            names += [arm_key("target_pose", a) for a in self.arms]
+            names += [f"subtask/{a}" for a in self.arms] if several else []
+            names += ["env_state"]
+            names += [f"object_poses/{o}" for o in self.objects]
+            names += [f"subtask_signals/{n}" for n in sig]
+            names += [f"obs/{k}" for k in obs]
             self.columns = {name: [] for name in names}
         for column, value in zip(self.columns.values(), values, strict=True):
             column.append(value)
@@ -412,20 +615,30 @@ class StepRecorder:
             for k, v in self.columns.items()
         }
         if "actions" in out:
-            out["gripper"] = out["actions"][:, -1].astype(np.float32)
+            for n, arm in enumerate(self.arms):  # each arm's 7 action entries end with its grip
+                out[arm_key("gripper", arm)] = out["actions"][:, 7 * n + 6].astype(np.float32)
         return out
 
 
 def replay_actions(
-    env: Env, initial_state: np.ndarray, actions: np.ndarray, objects: tuple[str, ...]
+    env: Env,
+    initial_state: np.ndarray,
+    actions: np.ndarray,
+    objects: tuple[str, ...],
+    arms: tuple[str, ...] = (ARM,),
 ) -> tuple[dict[str, np.ndarray], bool]:
-    """Restore ``initial_state``, execute ``actions`` (T, 7) and record every step, with the
-    controller target each action implies (paper M.1). Returns (steps, task success)."""
+    """Restore ``initial_state``, execute ``actions`` (T, 7 per arm of ``arms``) and record
+    every step, with the controller target each arm's action implies (paper M.1). Returns
+    (steps, task success)."""
     env.set_state(initial_state)
-    recorder = StepRecorder(objects)
+    recorder = StepRecorder(objects, arms)
+    each = arm_envs(env, arms)
     for action in np.asarray(actions, dtype=np.float32):
-        eef = env.eef_pose()
-        target = env.action_to_target_pose(action)
-        recorder.record(env, eef, env.object_poses(), action, target)
+        eefs = {arm: a.eef_pose() for arm, a in each.items()}
+        targets = {
+            arm: a.action_to_target_pose(action[7 * n : 7 * n + 7])
+            for n, (arm, a) in enumerate(each.items())
+        }
+        recorder.record(env, eefs, env.object_poses(), action, targets)
         env.step(action)
     return recorder.arrays(), bool(env.is_success())

@@ -21,14 +21,28 @@ from mimicgen_pipe import poses
 EEF_QUAT_REFERENCE = np.array([0.0, 1.0, 0.0, 0.0])  # wxyz: 180° about world x, pointing down
 
 
-def observation_keys(objects: Sequence[str]) -> tuple[str, ...]:
-    """Every key ``low_dim_observation`` returns for a task with these objects, in order."""
+def observation_keys(objects: Sequence[str], arms: Sequence[str] = ()) -> tuple[str, ...]:
+    """Every key ``low_dim_observation`` returns for a task with these objects, in order;
+    with ``arms`` (a task of several), :func:`arms_observation_values`'."""
     keys = ["eef_pos", "eef_quat", "gripper_qpos"]
     for o in objects:
         keys += [f"{o}_pos", f"{o}_quat", f"eef_to_{o}_pos"]
     for i, a in enumerate(objects):
         keys += [f"{a}_to_{b}_pos" for b in objects[i + 1 :]]
+    if arms:
+        return _arm_keys(tuple(keys), arms)
     return tuple(keys)
+
+
+def _arm_keys(keys: tuple[str, ...], arms: Sequence[str]) -> tuple[str, ...]:
+    """One arm's keys for several arms: the arm's own (end effector, gripper) once per arm,
+    prefixed with its name, then the objects' once."""
+    own = tuple(k for k in keys if _is_arms(k))
+    return tuple(f"{a}_{k}" for a in arms for k in own) + tuple(k for k in keys if k not in own)
+
+
+def _is_arms(key: str) -> bool:
+    return key.startswith("eef") or key == "gripper_qpos"
 
 
 def _quat(rotation: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
@@ -76,6 +90,23 @@ def observation_values(
         for b in objects[i + 1 :]:
             out[f"{a}_to_{b}_pos"] = object_poses[b][:3, 3] - object_poses[a][:3, 3]
     return out
+
+
+def arms_observation_values(
+    eef_poses: Mapping[str, np.ndarray],
+    gripper_qpos: Mapping[str, np.ndarray],
+    object_poses: Mapping[str, np.ndarray],
+    objects: Sequence[str],
+) -> dict[str, np.ndarray]:
+    """Observation of one step of a task with several arms, in float64: each arm's
+    end-effector pose, gripper and end-effector-to-object positions as one arm's, prefixed
+    with the arm's name (``left_eef_pos``), and the objects' poses and relative positions
+    once. eef_poses, gripper_qpos: arm -> as :func:`observation_values` takes them."""
+    out: dict[str, np.ndarray] = {}
+    for arm, eef in eef_poses.items():
+        one = observation_values(eef, gripper_qpos[arm], object_poses, objects)
+        out |= {f"{arm}_{k}": v for k, v in one.items() if _is_arms(k)}
+    return out | {k: v for k, v in one.items() if not _is_arms(k)}
 
 
 def observation_dims(objects: Sequence[str]) -> dict[str, int]:

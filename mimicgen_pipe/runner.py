@@ -31,6 +31,7 @@ from mimicgen_pipe.generation import (
     Env,
     GenerationConfig,
     SourceDemos,
+    arm_key,
     reachable_scenes,
     run_attempt,
 )
@@ -41,7 +42,7 @@ from mimicgen_pipe.params import Params, data_params, range_error
 from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
 from mimicgen_pipe.store import EpisodeStore, read_store, write_store
-from mimicgen_pipe.taskspec import TaskSpec
+from mimicgen_pipe.taskspec import ARM, TaskSpec
 
 ATTEMPTS_PER_BLOCK = 16  # rebuilding a ManiSkill scene costs ~0.24 s, ~4% of a block
 
@@ -171,7 +172,8 @@ def attempt_job(
     the parsed store."""
     store = read_store(
         parsed,
-        required=["target_pose", "gripper"] + [f"object_poses/{o}" for o in spec.objects],
+        required=[arm_key(k, a) for k in ("target_pose", "gripper") for a in spec.arms]
+        + [f"object_poses/{o}" for o in spec.objects],
         task=params.task,
         kind="parsed",
         required_episodes=["subtask_term_index"],
@@ -190,7 +192,7 @@ def attempt_job(
         g.transit,
         g.planner,
     )
-    sources = source_demos(store, spec.objects)
+    sources = source_demos(store, spec.objects, spec.arms)
     job = AttemptJob(make_env, sources, spec, config, variant, make_batch, g.num_envs)
     return job, store
 
@@ -482,11 +484,14 @@ def generate(
     return GenerationResult(kept, failed, metrics)
 
 
-def source_demos(store: EpisodeStore, objects: tuple[str, ...]) -> SourceDemos:
-    """A parsed store's arrays in the generator's form (4x4 world poses)."""
+def source_demos(
+    store: EpisodeStore, objects: tuple[str, ...], arms: tuple[str, ...] = (ARM,)
+) -> SourceDemos:
+    """A parsed store's arrays in the generator's form (4x4 world poses), for a task with
+    these objects and arms."""
     return SourceDemos(
-        target_poses=store.poses("target_pose"),
-        gripper=np.asarray(store.data["gripper"], np.float64),
+        target_poses={a: store.poses(arm_key("target_pose", a)) for a in arms},
+        gripper={a: np.asarray(store.data[arm_key("gripper", a)], np.float64) for a in arms},
         object_poses={o: store.poses(f"object_poses/{o}") for o in objects},
         episode_ends=store.episode_ends,
         term_index=np.asarray(store.episodes["subtask_term_index"], np.int64),

@@ -126,6 +126,16 @@ class TaskSpec:
         """``arm``'s subtasks, in order."""
         return tuple(s for s in self.subtasks if s.arm == arm)
 
+    def arm_indices(self, arm: str) -> tuple[int, ...]:
+        """The indices in ``subtasks`` of ``arm``'s subtasks, in order."""
+        return tuple(i for i, s in enumerate(self.subtasks) if s.arm == arm)
+
+    @property
+    def ending_subtasks(self) -> tuple[int, ...]:
+        """The indices of the subtasks with a term signal (every arm's but its last): the
+        columns of a parsed store's subtask ends, in this order."""
+        return tuple(i for i, s in enumerate(self.subtasks) if s.term_signal is not None)
+
     @property
     def variants(self) -> tuple[str, ...]:
         return tuple(self.reset_variants)
@@ -133,7 +143,7 @@ class TaskSpec:
     @property
     def provided_obs_keys(self) -> tuple[str, ...]:
         """Every observation key the generator records for this task."""
-        return observation_keys(self.objects)
+        return observation_keys(self.objects, self.arms if len(self.arms) > 1 else ())
 
     @property
     def default_obs_keys(self) -> tuple[str, ...]:

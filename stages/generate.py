@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> None:
         print(f"generate: {note}")
     g = params.generate
     envs.check_robot(params.backend, g.robot)
-    envs.check_transit(params.backend, g.robot, g.transit)
+    envs.check_transit(params.backend, g.robot, g.transit, len(spec.arms))
     make_batch = envs.generation_batches(params)  # refuses a batch it cannot run
     executor = stage_executor(params, "generate")  # refuses unsafe Ray settings before any work
     parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))

@@ -119,3 +119,9 @@ def test_each_arms_last_subtask_ends_with_the_demo():
     twice = (LEFT[0], LEFT[0], LEFT[1])
     with pytest.raises(ValueError, match="arm left has two subtasks of one name"):
         two_arm(subtasks=twice + RIGHT)
+
+
+def test_planned_transit_for_two_arms_is_refused():
+    with pytest.raises(Exception, match="the task has 2 arms and the motion planner plans for one"):
+        envs.check_transit("maniskill", "panda", "planned", 2)
+    envs.check_transit("maniskill", "panda", "linear", 2)  # linear transit: any number of arms
