@@ -412,24 +412,30 @@ def attempt_actions(
             running[arm] = _Segment(i, targets, grips, action_noise(sigma, rng))
         return True
 
+    arm_list = list(arms.items())
+    starting = True  # at the start, and once a segment has ended: which arms may start
     while True:
-        for arm in spec.arms:
-            i = waiting(arm)
-            if i is None:
-                continue
-            group = [(arm, i)]
-            if i in partner:
-                j = partner[i]
-                other = spec.subtasks[j].arm
-                if waiting(other) != j:
-                    continue  # its partner is not ready: hold
-                group.append((other, j))
-            if not start(group):
-                break
-        if ik_failed or planner_failed or all(s is None for s in running.values()):
-            break  # stopped, or every arm has done its subtasks (a checked spec cannot stall)
+        if starting:
+            for arm in spec.arms:
+                i = waiting(arm)
+                if i is None:
+                    continue
+                group = [(arm, i)]
+                if i in partner:
+                    j = partner[i]
+                    other = spec.subtasks[j].arm
+                    if waiting(other) != j:
+                        continue  # its partner is not ready: hold
+                    group.append((other, j))
+                if not start(group):
+                    break
+            active = {arm: s.index for arm, s in running.items() if s is not None}
+            if ik_failed or planner_failed or not active:
+                break  # stopped, or every arm has done its subtasks (a checked spec cannot stall)
+            segments = [(arm, running[arm]) for arm in active]
+            starting = False
         eefs, targets, parts = {}, {}, []
-        for arm, a in arms.items():
+        for arm, a in arm_list:
             eefs[arm] = a.eef_pose()
             seg = running[arm]
             if seg is None:  # waiting: hold where its last segment ended (or where it began)
@@ -442,7 +448,6 @@ def attempt_actions(
                                       seg.noise[seg.k])  # fmt: skip
             parts.append(clip_actions(action))
         action = (parts[0] if len(parts) == 1 else np.concatenate(parts)).astype(np.float32)
-        active = {arm: s.index for arm, s in running.items() if s is not None}
         sig = recorder.record(env, eefs, obj_now, action, targets, active)
         for i in active.values():
             term = spec.subtasks[i].term_signal
@@ -450,9 +455,7 @@ def attempt_actions(
                 reached[i] = True
         yield action
         obj_now = env.object_poses()
-        for arm, seg in running.items():
-            if seg is None:
-                continue
+        for arm, seg in segments:
             seg.k += 1
             if seg.k < len(seg.targets):
                 continue
@@ -462,6 +465,7 @@ def attempt_actions(
             ended[seg.index] = True
             hold[arm] = (seg.targets[-1], float(seg.grips[-1]))
             running[arm], done[arm] = None, done[arm] + 1
+            starting = True
     success = not (ik_failed or planner_failed) and bool(env.is_success())
     final = np.zeros(len(spec.subtasks), dtype=bool)
     for arm in spec.arms:
@@ -561,6 +565,7 @@ class StepRecorder:
 
     def __init__(self, objects: tuple[str, ...], arms: tuple[str, ...] = (ARM,)) -> None:
         self.objects, self.arms = objects, arms
+        self.several = len(arms) > 1
         self.columns: dict[str, list] = {}
 
     def record(
@@ -576,7 +581,7 @@ class StepRecorder:
         several arms each one's subtask (``active``: arm -> subtask index, an arm without
         one holding); returns the subtask signals it recorded."""
         sig = env.subtask_signals()
-        several = len(self.arms) > 1
+        several = self.several
         if several:
             arms = arm_envs(env, self.arms)
             grippers = {arm: arms[arm].gripper_state() for arm in self.arms}
