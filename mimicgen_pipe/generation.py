@@ -16,7 +16,7 @@ from mimicgen_pipe.pose_noise import PoseNoise, generation_rng, perturb_pose
 from mimicgen_pipe.registry import load
 from mimicgen_pipe.segments import segment_bounds
 from mimicgen_pipe.selection import Candidates
-from mimicgen_pipe.taskspec import ARM, TaskSpec
+from mimicgen_pipe.taskspec import ARM, TaskSpec, arm_key
 from mimicgen_pipe.transit import PlannerSettings, approach_start
 
 
@@ -546,12 +546,6 @@ def reachable_scenes(
             fine = fine and bool(a.reachable(np.concatenate(targets)).all())
         ok += fine
     return ok
-
-
-def arm_key(key: str, arm: str) -> str:
-    """The name of an arm's step array ``key`` (eef_pose, target_pose, gripper): the key
-    itself for a one-arm task's arm, ``<key>/<arm>`` for one of several."""
-    return key if arm == ARM else f"{key}/{arm}"
 
 
 class StepRecorder:

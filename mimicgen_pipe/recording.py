@@ -16,6 +16,7 @@ from tqdm import tqdm
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.generation import Env, replay_actions
 from mimicgen_pipe.params import SourceParams
+from mimicgen_pipe.taskspec import ARM
 
 # the demonstrator draws seeds until num_demos demos replay to success, at most this many
 # seeds per demo asked for (plug_charger, the hardest planner here, needs about 4.5)
@@ -66,13 +67,14 @@ def record_source_demos(
     source: SourceParams,
     task: str,
     out: Path,
+    arms: tuple[str, ...] = (ARM,),
 ) -> SourceRecording:
     """``source.num_demos`` demos of ``task`` recorded on ``env`` (its ``objects`` in this
-    order): drawn by ``draw`` from reset seeds source.seed on (or source.from_file's), each
-    replayed and kept if it succeeds; a demo that fails on replay is replaced by one from
-    the demonstrator's next seeds, up to SEEDS_PER_DEMO seeds per demo wanted. ``draw``
-    gets a scratch directory beside ``out``, named as its temporaries, so that the next run
-    removes it if this one is killed before it can.
+    order, and its ``arms``): drawn by ``draw`` from reset seeds source.seed on (or
+    source.from_file's), each replayed and kept if it succeeds; a demo that fails on replay
+    is replaced by one from the demonstrator's next seeds, up to SEEDS_PER_DEMO seeds per
+    demo wanted. ``draw`` gets a scratch directory beside ``out``, named as its
+    temporaries, so that the next run removes it if this one is killed before it can.
 
     Raises InputError when no demo succeeds on replay, or when the demonstrator gives fewer
     than source.num_demos within its seeds (a file gives what it has)."""
@@ -91,7 +93,7 @@ def record_source_demos(
         for ep in tqdm(episodes, desc="source: replaying demos", unit="demo"):
             env.set_state(ep.initial_state)
             obj = env.object_poses()
-            recorded, success = replay_actions(env, ep.initial_state, ep.actions, objects)
+            recorded, success = replay_actions(env, ep.initial_state, ep.actions, objects, arms)
             if not success:
                 replay_failures += 1
                 continue

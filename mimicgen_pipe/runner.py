@@ -31,7 +31,6 @@ from mimicgen_pipe.generation import (
     Env,
     GenerationConfig,
     SourceDemos,
-    arm_key,
     reachable_scenes,
     run_attempt,
 )
@@ -42,7 +41,7 @@ from mimicgen_pipe.params import Params, data_params, range_error
 from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
 from mimicgen_pipe.store import EpisodeStore, read_store, write_store
-from mimicgen_pipe.taskspec import ARM, TaskSpec
+from mimicgen_pipe.taskspec import ARM, TaskSpec, arm_key
 
 ATTEMPTS_PER_BLOCK = 16  # rebuilding a ManiSkill scene costs ~0.24 s, ~4% of a block
 

@@ -14,6 +14,12 @@ from mimicgen_pipe.observations import observation_keys
 ARM = "arm"  # the arm of a one-arm task's subtasks
 
 
+def arm_key(key: str, arm: str) -> str:
+    """The name of an arm's step array ``key`` (eef_pose, target_pose, gripper): the key
+    itself for a one-arm task's arm, ``<key>/<arm>`` for one of several."""
+    return key if arm == ARM else f"{key}/{arm}"
+
+
 @dataclass(frozen=True)
 class SubtaskSpec:
     """One object-centric subtask (paper 3.1, J.2).

@@ -11,8 +11,9 @@ import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.outputs import claim, store_kind
-from mimicgen_pipe.segments import read_boundaries, split_into_segments, validate_segments
+from mimicgen_pipe.segments import check_subtask_ends, read_boundaries, subtask_ends
 from mimicgen_pipe.store import read_store, write_store
+from mimicgen_pipe.taskspec import arm_key
 from stages import add_selection_arguments, stage_params
 
 
@@ -33,16 +34,20 @@ def run(args: argparse.Namespace) -> None:
         raise InputError("--boundaries: expected a file path, got ''")
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
+    if args.boundaries and len(spec.arms) > 1:
+        raise InputError(f"--boundaries: a file of one arm's subtask ends; {spec.name} has arms "
+                         f"{', '.join(spec.arms)} (each is split by its own signals)")  # fmt: skip
     src_path = Path(args.source or layout.source_store(params.task))
     out = Path(args.out or layout.parsed_store(params.task))
     signals = sorted({s.term_signal for s in spec.subtasks if s.term_signal})
-    pose_keys = ["eef_pose", "target_pose"] + [f"object_poses/{o}" for o in spec.objects]
+    pose_keys = [arm_key(k, a) for k in ("eef_pose", "target_pose") for a in spec.arms]
+    pose_keys += [f"object_poses/{o}" for o in spec.objects]
     sig_keys = [] if args.boundaries else [f"subtask_signals/{s}" for s in signals]
     given = [src_path, *([args.boundaries] if args.boundaries else [])]
     claim((out, store_kind("parsed")), inputs=given)
     store = read_store(
         src_path,
-        required=["actions", "gripper", *pose_keys, *sig_keys],
+        required=["actions", *(arm_key("gripper", a) for a in spec.arms), *pose_keys, *sig_keys],
         task=params.task,
         kind="source",
     )
@@ -57,11 +62,11 @@ def run(args: argparse.Namespace) -> None:
         else:
             sig = {s: ep[f"subtask_signals/{s}"] for s in signals}
             try:
-                ends = split_into_segments(sig, spec.subtasks)
+                ends = subtask_ends(sig, spec)
             except ValueError as exc:
                 raise InputError(f"{src_path}: episode {i}: {exc}") from exc
             where = f"{src_path}: episode {i}"
-        why = validate_segments(ends, len(ep["actions"]), spec.subtasks)
+        why = check_subtask_ends(ends, len(ep["actions"]), spec)
         if why:
             raise InputError(f"{where}: {why}")
         term_index.append(ends)

@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> None:
     env = envs.make_env(params.backend, params.task, p.robot, params.maniskill.lean_step)
     print(f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)")
     draw = functools.partial(source_files.source_episodes, params.backend, env)
-    demos = record_source_demos(env, spec.objects, draw, p, params.task, out)
+    demos = record_source_demos(env, spec.objects, draw, p, params.task, out, spec.arms)
     from mimicgen_pipe.store import write_store
 
     # store and metrics written aside, then renamed together (the store last)

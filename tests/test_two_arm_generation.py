@@ -13,6 +13,7 @@ import pytest
 
 from mimicgen_pipe import poses
 from mimicgen_pipe.generation import GenerationConfig, replay_actions, run_attempt
+from mimicgen_pipe.segments import check_subtask_ends
 from tests import two_arm_toy as toy
 
 N_INTERP = 5
@@ -30,6 +31,17 @@ def generated():
 
 def steps_of(attempt, arm: str, subtask: str) -> np.ndarray:
     return np.flatnonzero(attempt.steps[f"subtask/{arm}"] == SUBTASK[(arm, subtask)])
+
+
+def test_parse_splits_each_arms_track_by_its_own_signals(generated):
+    _, sources, _ = generated
+    # columns: the subtasks with a term signal in the task's order: right's touch_cube and
+    # reach_tray_right, left's reach_tray_left; every toy demo ends them at 15, 25, 25
+    assert toy.SPEC.ending_subtasks == (0, 1, 3)
+    assert sources.term_index.tolist() == [[15, 25, 25]] * 4
+    assert check_subtask_ends(np.array([15, 25, 25]), 35, toy.SPEC) is None
+    why = check_subtask_ends(np.array([15, 25, 35]), 35, toy.SPEC)
+    assert why is not None and why.startswith("arm left: ")
 
 
 def test_each_arm_runs_its_own_subtasks_and_the_attempts_succeed(generated):

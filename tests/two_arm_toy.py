@@ -15,7 +15,7 @@ from mimicgen_pipe.controller import (
     target_poses_to_actions,
 )
 from mimicgen_pipe.generation import SourceDemos, replay_actions
-from mimicgen_pipe.segments import split_into_segments
+from mimicgen_pipe.segments import subtask_ends
 from mimicgen_pipe.taskspec import (
     ObjectBounds,
     ResetVariant,
@@ -175,9 +175,7 @@ def source_demos(env: ToyTwoArmEnv, seeds: list[int]) -> SourceDemos:
     term = []
     for d in steps:
         signals = {k.split("/", 1)[1]: v for k, v in d.items() if k.startswith("subtask_signals/")}
-        ends = {a: split_into_segments(signals, SPEC.arm_subtasks(a)) for a in ARMS}
-        term.append([ends[s.arm][SPEC.arm_subtasks(s.arm).index(s)] for s in
-                     (SPEC.subtasks[i] for i in SPEC.ending_subtasks)])  # fmt: skip
+        term.append(subtask_ends(signals, SPEC))
     cat = {k: np.concatenate([d[k] for d in steps]) for k in steps[0]}
     return SourceDemos(
         target_poses={a: cat[f"target_pose/{a}"] for a in ARMS},
