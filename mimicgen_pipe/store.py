@@ -289,15 +289,20 @@ def _strip(prefix: str, arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarra
 def _is_pose_key(key: str) -> bool:
     """Keys stored as (..., 7) pose rows."""
     return key in ("eef_pose", "target_pose", "initial_object_poses") or key.startswith(
-        "object_poses/"
+        ("object_poses/", "eef_pose/", "target_pose/")  # the last two: an arm's of several
     )
 
 
 def _check_bookkeeping(
-    path: Path, data: Mapping[str, np.ndarray], ends: np.ndarray, episodes: Mapping[str, Any]
+    path: Path,
+    data: Mapping[str, np.ndarray],
+    ends: np.ndarray,
+    episodes: Mapping[str, Any],
+    attrs: Mapping[str, Any],
 ) -> None:
     """Episode ends cumulative and covering every data array; per-episode arrays one row per
-    episode; pose arrays 7 wide; subtask ends (parsed stores) inside their episodes."""
+    episode; pose arrays 7 wide; subtask ends (parsed stores) inside their episodes, and in
+    order within each arm's (attrs.subtasks' ``arm``, for a task of several)."""
     if ends.ndim != 1 or (len(ends) and (ends[0] < 0 or np.any(np.diff(ends) < 0))):
         raise InputError(f"{path}: meta/episode_ends: expected non-decreasing ends, got {ends}")
     n_steps = int(ends[-1]) if len(ends) else 0
@@ -323,8 +328,13 @@ def _check_bookkeeping(
     term = episodes.get("subtask_term_index")
     if term is not None:
         lengths = np.diff(np.concatenate([[0], ends]))
+        # the arm of each column: of the subtasks with a term signal, in order
+        arms = np.array(
+            [s.get("arm", "") for s in attrs.get("subtasks") or () if s.get("term_signal")]
+        )
         for i, (row, length) in enumerate(zip(np.atleast_2d(term), lengths, strict=False)):
-            if np.any(row < 1) or np.any(row > length) or np.any(np.diff(row) < 0):
+            same_arm = (arms[1:] == arms[:-1]) if len(arms) == len(row) else True
+            if np.any(row < 1) or np.any(row > length) or np.any((np.diff(row) < 0) & same_arm):
                 raise InputError(
                     f"{path}: meta/episodes/subtask_term_index: episode {i}: subtask ends "
                     f"{row.tolist()} are not increasing inside the episode's {length} steps"
@@ -414,7 +424,7 @@ def read_store(
     missing = [k for k in required_episodes if k not in episodes]
     if missing:
         raise InputError(f"{path}: missing meta/episodes keys {missing}")
-    _check_bookkeeping(path, data, ends, episodes)
+    _check_bookkeeping(path, data, ends, episodes, attrs)
     _check_finite(path, data, ends, episodes)
     return EpisodeStore(path, data, ends, episodes, attrs)
 
@@ -536,7 +546,7 @@ def open_store(
     term = "meta/episodes/subtask_term_index"
     if term in arrays:  # its values are checked, so it is read (one row per episode)
         episodes["subtask_term_index"] = _read_array(path, term, arrays[term])
-    _check_bookkeeping(path, data, ends, episodes)  # shapes only, besides subtask ends
+    _check_bookkeeping(path, data, ends, episodes, attrs)  # shapes only, besides subtask ends
     return StoreView(path, attrs, ends, arrays)
 
 

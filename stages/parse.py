@@ -81,6 +81,7 @@ def run(args: argparse.Namespace) -> None:
             "term_signal": s.term_signal,
             "term_offset_range": list(s.term_offset_range),
         }
+        | ({"arm": s.arm} if len(spec.arms) > 1 else {})
         for s in spec.subtasks
     ]
     write_store(out, "parsed", steps, episodes, attrs)

@@ -14,7 +14,9 @@ import pytest
 from mimicgen_pipe import poses
 from mimicgen_pipe.generation import GenerationConfig, replay_actions, run_attempt
 from mimicgen_pipe.segments import check_subtask_ends
+from mimicgen_pipe.store import read_store
 from tests import two_arm_toy as toy
+from tests.conftest import cli
 
 N_INTERP = 5
 CONFIG = GenerationConfig(action_noise=0.0, n_interp=N_INTERP)
@@ -119,3 +121,62 @@ def test_a_failed_subtask_is_attributed_to_its_arm():
     a = run_attempt(env, wrong, toy.SPEC, CONFIG, "D0", 7)
     assert not a.success
     assert a.failed_subtask == SUBTASK[("left", "reach_tray_left")]
+
+
+# ---- ManiSkill: two_robot_stack_cube, end to end ----
+
+TWO_ROBOT_PARAMS = (
+    "task: two_robot_stack_cube\nsource: {num_demos: 3, seed: 0}\ngenerate: {workers: 1}\n"
+)
+
+
+@pytest.fixture(scope="module")
+def two_robot(tmp_path_factory):
+    """3 scripted source demos, parsed, and 8 generated D0 attempts, by the stages."""
+    work = tmp_path_factory.mktemp("two_robot")
+    (work / "params.yaml").write_text(TWO_ROBOT_PARAMS)
+    cli("source", cwd=work)
+    cli("parse", cwd=work)
+    cli("pose_noise", cwd=work)
+    cli("generate", "--variant", "D0", "--attempts", "8", cwd=work)
+    return work
+
+
+@pytest.mark.sim
+def test_two_robot_stack_cube_generates_with_its_constraint(two_robot):
+    import envs
+
+    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
+    index = {(s.arm, s.name): i for i, s in enumerate(spec.subtasks)}
+    parsed = read_store(two_robot / "data/parsed/two_robot_stack_cube.zarr")
+    assert parsed.episodes["subtask_term_index"].shape == (3, 4)  # two per arm
+    kept = read_store(two_robot / "data/generated/two_robot_stack_cube_D0.zarr")
+    failed = read_store(two_robot / "data/generated/two_robot_stack_cube_D0_failed.zarr")
+    assert kept.n_episodes >= 4 and kept.data["actions"].shape[1] == 14
+    for store in (kept, failed):
+        for e in range(store.n_episodes):
+            ep = store.episode(e)
+            placed = np.flatnonzero(ep["subtask/right"] == index[("right", "place_cubeB")])
+            stack = np.flatnonzero(ep["subtask/left"] == index[("left", "stack_cubeA")])
+            if len(stack):  # the left arm stacks only after the right arm placed cube B
+                assert stack[0] > placed[-1]
+    env = envs.make_env("maniskill", "two_robot_stack_cube")
+    try:
+        for e in range(2):
+            ep = kept.episode(e)
+            _, ok = replay_actions(
+                env, kept.episodes["initial_state"][e], ep["actions"], spec.objects, spec.arms
+            )
+            assert ok, f"kept episode {e} does not replay to success"
+    finally:
+        env.close()
+
+
+@pytest.mark.sim
+def test_a_two_arm_store_given_to_a_one_arm_task_is_refused(two_robot):
+    parsed = two_robot / "data/pose_noise/two_robot_stack_cube.zarr"
+    res = cli("generate", "--task", "stack_cube", "--variant", "D0", "--parsed", str(parsed),
+              "--out", str(two_robot / "x.zarr"), cwd=two_robot, check=False)  # fmt: skip
+    assert res.returncode == 2
+    assert "attrs.task is 'two_robot_stack_cube', expected 'stack_cube'" in res.stderr
+    assert not (two_robot / "x.zarr").exists()

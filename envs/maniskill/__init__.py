@@ -37,6 +37,10 @@ def load_task(name: str):
 
 
 def make_env(task: str, robot: str = "panda", lean_step: bool = True):
+    if load_task(task).arm_agents:
+        from envs.maniskill.two_arm import TwoArmManiSkillEnv
+
+        return TwoArmManiSkillEnv(task, robot, lean_step)
     if robot == "xarm6":
         from envs.maniskill.xarm6 import XArm6ManiSkillEnv
 
@@ -63,6 +67,27 @@ def make_batch(task: str, robot: str, num_envs: int, sim_backend: str | None):
 
 
 def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_dir: Path):
+    if hasattr(env, "demonstrate"):  # a task with its own scripted demonstrator on its env
+        return scripted_episodes(env, num_demos, seed, from_file)
     from envs.maniskill import source
 
     return source.source_episodes(env, num_demos, seed, from_file, work_dir)
+
+
+def scripted_episodes(env, num_demos: int, seed: int, from_file: str | None):
+    """Up to ``num_demos`` demos of ``env.demonstrate`` from reset seeds seed, seed + 1, ...
+    (at most 10 per demo wanted), the seeds it failed on, and the seeds tried."""
+    from envs import SourceEpisode
+
+    if from_file is not None:
+        raise InputError(f"source.from_file: task {env.spec.name} records its own demos only")
+    out, tried = [], 0
+    while len(out) < num_demos and tried < 10 * num_demos:
+        s = seed + tried
+        tried += 1
+        env.reset(s, "D0")
+        state = env.get_state()
+        actions = env.demonstrate(s)
+        if actions is not None:
+            out.append(SourceEpisode(s, state, actions))
+    return out, tried - len(out), tried

@@ -98,6 +98,11 @@ class ManiSkillTask:
     batched: the task has a batched form (envs/maniskill/batch.py, generate.num_envs): its
         reset draws every scene it is given, its signals are per scene, and its scene and
         frames are the same in every scene of a batch (no per-build geometry, no frames).
+    arm_agents: for a task with two arms (spec.arms), each arm's index among ManiSkill's
+        agents (envs/maniskill/two_arm.py); empty for one arm.
+    demonstrator: a two-arm task's scripted demonstrator, (env, seed) -> the actions
+        (T, 7 per arm) of one demo on the task's env (TwoArmManiSkillEnv, reset to the seed's
+        D0 scene), or None when the demo fails.
     """
 
     spec: TaskSpec
@@ -116,6 +121,8 @@ class ManiSkillTask:
     restore: Callable[[Any], None] | None = None
     load_scene: Callable[[Any], None] | None = None
     batched: bool = False
+    arm_agents: dict[str, int] = field(default_factory=dict)
+    demonstrator: Callable[[Any, int], Any] | None = None
 
     def __post_init__(self) -> None:
         if self.frames and self.rebuild_seed != CREATION_SEED:
