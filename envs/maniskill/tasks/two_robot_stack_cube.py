@@ -50,7 +50,8 @@ def _variant(spread: float) -> ResetVariant:
 
 
 def initialize(env, env_idx, variant: ResetVariant) -> None:
-    """ManiSkill's reset, then the cubes redrawn from the variant and the goal on y = 0."""
+    """ManiSkill's reset, then the cubes redrawn from the variant and the goal disc drawn
+    uniformly in its bounds (its height and tilt ManiSkill's)."""
     import torch
 
     from envs.maniskill.env import draw_planar, set_planar_poses
@@ -59,10 +60,12 @@ def initialize(env, env_idx, variant: ResetVariant) -> None:
     b = len(env_idx)
     xy, yaw = draw_planar(variant, ("cubeA", "cubeB"), b, (0.0, 0.0))
     set_planar_poses([env.cubeA, env.cubeB], xy, yaw, [0.02, 0.02])
-    goal = env.goal_region.pose.raw_pose.clone()
-    goal[:, 0] = torch.rand(b) * 0.1 - 0.05
-    goal[:, 1] = torch.rand(b) * 0.04 - 0.02
     from mani_skill.utils.structs.pose import Pose
+
+    goal = env.goal_region.pose.raw_pose.clone()
+    bounds = variant.bounds["goal"]
+    for axis, (lo, hi) in enumerate((bounds.x, bounds.y)):
+        goal[:, axis] = torch.rand(b) * (hi - lo) + lo
 
     env.goal_region.set_pose(Pose.create_from_pq(p=goal[:, :3], q=goal[:, 3:]))
 
