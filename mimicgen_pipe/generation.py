@@ -219,10 +219,9 @@ class SourceDemos:
         """Arm -> (N, M_arm, 2) [start, end) steps of each demo's segments of the arm's
         subtasks, relative to the demo's start, with ``offsets`` (K,) (one per term signal,
         as term_index's columns) added to the detected ends."""
-        column = {i: c for c, i in enumerate(spec.ending_subtasks)}
         out = {}
         for arm in spec.arms:
-            cols = [column[i] for i in spec.arm_indices(arm)[:-1]]
+            cols = spec.term_columns(arm)
             out[arm] = np.stack(
                 [
                     segment_bounds(self.term_index[j, cols], offsets[cols], int(n))
@@ -561,6 +560,7 @@ class StepRecorder:
         self.objects, self.arms = objects, arms
         self.several = len(arms) > 1
         self.columns: dict[str, list] = {}
+        self._arm_envs: tuple[Env, dict[str, ArmEnv]] | None = None  # found once per env
 
     def record(
         self,
@@ -577,7 +577,9 @@ class StepRecorder:
         sig = env.subtask_signals()
         several = self.several
         if several:
-            arms = arm_envs(env, self.arms)
+            if self._arm_envs is None or self._arm_envs[0] is not env:
+                self._arm_envs = (env, arm_envs(env, self.arms))
+            arms = self._arm_envs[1]
             grippers = {arm: arms[arm].gripper_state() for arm in self.arms}
             obs = arms_observation_values(eefs, grippers, object_poses, self.objects)
             own = [eefs[a] for a in self.arms] + [targets[a] for a in self.arms]

@@ -67,19 +67,18 @@ def subtask_ends(signals: Mapping[str, np.ndarray], spec: TaskSpec) -> np.ndarra
     """(K,) int64: the detected end of every subtask with a term signal in one demo, in the
     task's order (TaskSpec.ending_subtasks): each arm's subtasks split by its own signals
     (:func:`split_into_segments`; its ValueError names the subtask)."""
-    per_arm = {arm: split_into_segments(signals, spec.arm_subtasks(arm)) for arm in spec.arms}
-    place = {i: n for arm in spec.arms for n, i in enumerate(spec.arm_indices(arm))}
-    ends = [per_arm[spec.subtasks[i].arm][place[i]] for i in spec.ending_subtasks]
-    return np.asarray(ends, dtype=np.int64)
+    ends = np.zeros(len(spec.ending_subtasks), dtype=np.int64)
+    for arm in spec.arms:
+        ends[spec.term_columns(arm)] = split_into_segments(signals, spec.arm_subtasks(arm))
+    return ends
 
 
 def check_subtask_ends(ends: np.ndarray, length: int, spec: TaskSpec) -> str | None:
     """Why the subtask ends ``ends`` (K,) (as :func:`subtask_ends` gives them) of one demo of
     ``length`` steps are unusable, for each arm (:func:`validate_segments`); None if
     usable."""
-    column = {i: c for c, i in enumerate(spec.ending_subtasks)}
     for arm in spec.arms:
-        cols = [column[i] for i in spec.arm_indices(arm)[:-1]]
+        cols = spec.term_columns(arm)
         why = validate_segments(np.asarray(ends)[cols], length, spec.arm_subtasks(arm))
         if why:
             return why if len(spec.arms) == 1 else f"arm {arm}: {why}"

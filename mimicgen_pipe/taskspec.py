@@ -142,6 +142,12 @@ class TaskSpec:
         columns of a parsed store's subtask ends, in this order."""
         return tuple(i for i, s in enumerate(self.subtasks) if s.term_signal is not None)
 
+    def term_columns(self, arm: str) -> list[int]:
+        """The columns of a parsed store's subtask ends (``ending_subtasks``) that are
+        ``arm``'s, in the arm's order."""
+        ending = self.ending_subtasks
+        return [ending.index(i) for i in self.arm_indices(arm)[:-1]]
+
     @property
     def variants(self) -> tuple[str, ...]:
         return tuple(self.reset_variants)

@@ -18,12 +18,11 @@ import os
 
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
 
-import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from envs import load_task  # noqa: E402
-from envs.maniskill.env import ManiSkillEnv  # noqa: E402
+from envs.maniskill.env import ManiSkillEnv, make_gym_env  # noqa: E402
 from envs.maniskill.tasks import ManiSkillTask  # noqa: E402
 from mimicgen_pipe import poses  # noqa: E402
 from mimicgen_pipe.controller import (  # noqa: E402
@@ -84,16 +83,12 @@ class ManiSkillBatch:
         self.spec = self.task.spec
         self.robot = robot
         self.num_envs = num_envs
-        self._env = gym.make(
+        self._env = make_gym_env(
             ManiSkillEnv.env_id_for(self.task),
+            self.task,
+            sim_backend,
             num_envs=num_envs,
-            obs_mode="none",
-            reward_mode="none",
-            control_mode=ManiSkillEnv.control_mode,
-            sim_backend=sim_backend,
-            render_backend="none",
             robot_uids=self.task.panda_uid,
-            **self.task.env_kwargs,
         )
         self._u = self._env.unwrapped
         arm = self._u.agent.controller.controllers["arm"].config

@@ -130,6 +130,22 @@ def _matrix(pose) -> np.ndarray:
 _ZERO3 = np.zeros(3, np.float32)
 
 
+def make_gym_env(env_id: str, task: ManiSkillTask, sim_backend: str = "physx_cpu", **kwargs):
+    """ManiSkill's env ``env_id`` of ``task`` as every env here makes it: state only, no
+    reward or rendering, pd_ee_delta_pose, on ``sim_backend``, with the task's env_kwargs
+    and ``kwargs`` (robot_uids, num_envs)."""
+    return gym.make(
+        env_id,
+        obs_mode="none",
+        reward_mode="none",
+        control_mode=ManiSkillEnv.control_mode,
+        sim_backend=sim_backend,
+        render_backend="none",
+        **kwargs,
+        **task.env_kwargs,
+    )
+
+
 class ManiSkillEnv:
     """One CPU ManiSkill env (physx_cpu, no rendering, state only, pd_ee_delta_pose).
 
@@ -170,16 +186,7 @@ class ManiSkillEnv:
         self.robot = robot
         self.lean_step = lean_step
         self.agent_uid = self.agent_uid_for(self.task, robot)
-        self._env = gym.make(
-            self.env_id_for(self.task),
-            obs_mode="none",
-            reward_mode="none",
-            control_mode=self.control_mode,
-            sim_backend="physx_cpu",
-            render_backend="none",
-            robot_uids=self.agent_uid,
-            **self.task.env_kwargs,
-        )
+        self._env = make_gym_env(self.env_id_for(self.task), self.task, robot_uids=self.agent_uid)
         self.unwrapped = self._env.unwrapped
         self._u = self.unwrapped
         if self._u.reconfiguration_freq:

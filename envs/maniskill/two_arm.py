@@ -9,12 +9,11 @@ import os
 
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
 
-import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from envs import load_task  # noqa: E402
-from envs.maniskill.env import ManiSkillEnv, _pose_of  # noqa: E402
+from envs.maniskill.env import ManiSkillEnv, _pose_of, make_gym_env  # noqa: E402
 from mimicgen_pipe.controller import (  # noqa: E402
     DeltaPoseController,
     actions_to_target_poses,
@@ -71,15 +70,7 @@ class TwoArmManiSkillEnv:
         self.task = load_task("maniskill", task)
         self.spec = self.task.spec
         self.robot = robot
-        self._env = gym.make(
-            ManiSkillEnv.env_id_for(self.task),
-            obs_mode="none",
-            reward_mode="none",
-            control_mode=self.control_mode,
-            sim_backend="physx_cpu",
-            render_backend="none",
-            **self.task.env_kwargs,
-        )
+        self._env = make_gym_env(ManiSkillEnv.env_id_for(self.task), self.task)
         self._u = self._env.unwrapped
         self.control_freq = int(self._u.control_freq)
         self._keys = list(self._env.action_space.keys())  # one per agent, in agent order
