@@ -16,10 +16,11 @@ from tqdm import tqdm
 
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
-from mimicgen_pipe.generation import Env
+from mimicgen_pipe.generation import Env, arm_envs
 from mimicgen_pipe.interrupts import Interrupted
-from mimicgen_pipe.observations import low_dim_observation
+from mimicgen_pipe.observations import arms_observation_values, low_dim_observation
 from mimicgen_pipe.outputs import check_same_run
+from mimicgen_pipe.taskspec import ARM
 from mimicgen_pipe.training import check_meta, find_checkpoints, load_checkpoint
 
 EVAL_SEED_BASE = 1 << 30  # generation and source seeds are < 2**30 (runner.attempt_seed)
@@ -134,6 +135,24 @@ class Rollout:
     subtask_ends: tuple[int, ...] = ()
 
 
+def policy_observation(
+    env: Env, objects: Sequence[str], arms: Sequence[str] = (ARM,)
+) -> dict[str, np.ndarray]:
+    """The low-dim observation of the env's current state as the generator records it
+    (float32, mimicgen_pipe.observations): for a task of several ``arms``, each arm's keys
+    prefixed with its name."""
+    if len(arms) == 1:
+        return low_dim_observation(env.eef_pose(), env.gripper_state(), env.object_poses(), objects)
+    each = arm_envs(env, tuple(arms))
+    values = arms_observation_values(
+        {a: e.eef_pose() for a, e in each.items()},
+        {a: e.gripper_state() for a, e in each.items()},
+        env.object_poses(),
+        objects,
+    )
+    return {k: np.asarray(v, np.float32) for k, v in values.items()}
+
+
 def rollout(
     env: Env,
     policy: ClosedLoopPolicy,
@@ -143,19 +162,21 @@ def rollout(
     objects: Sequence[str],
     cameras: Any = None,
     term_signals: Sequence[str] = (),
+    arms: Sequence[str] = (ARM,),
 ) -> Rollout:
     """One episode: reset the scene from ``seed``, act until the task succeeds or ``horizon``
     steps have run. ``cameras``: for a policy that reads images, a renderer of the env's
     state (mimicgen_pipe.video.make_renderer), whose images join the observation as
     ``<camera>_image``, the store's ``obs/<camera>_image`` (the same picture of the same
     state as the observe stage takes). ``term_signals``: the term signals of the subtasks
-    but the last, in order, whose ends the rollout records in its ``subtask_ends``."""
+    but the last, in order, whose ends the rollout records in its ``subtask_ends``. ``arms``:
+    the task's arms (spec.arms), whose end effectors the observation reads."""
     env.reset(seed=seed, variant=variant)
     policy.reset(seed)
     ends: list[int] = []
     before = env.subtask_signals() if term_signals else {}
     for t in range(horizon):
-        obs = low_dim_observation(env.eef_pose(), env.gripper_state(), env.object_poses(), objects)
+        obs = policy_observation(env, objects, arms)
         if cameras is not None:
             obs |= {f"{c}_image": im for c, im in cameras.images(env.get_state()).items()}
         env.step(policy.act(obs))
@@ -177,7 +198,7 @@ def _padded(ends: list[int], term_signals: Sequence[str]) -> tuple[int, ...]:
 class EvalJob:
     """Everything a worker needs: how to make its env and to load a policy by name; for a
     policy that reads images, how to make its cameras' renderer; the term signals whose
-    subtask ends each rollout records (see :func:`rollout`)."""
+    subtask ends each rollout records and the task's arms (see :func:`rollout`)."""
 
     make_env: Callable[[], Env]
     load_policy: Callable[[str], ClosedLoopPolicy]
@@ -186,6 +207,7 @@ class EvalJob:
     objects: tuple[str, ...]
     make_cameras: Callable[[], Any] | None = None
     term_signals: tuple[str, ...] = ()
+    arms: tuple[str, ...] = (ARM,)
 
 
 @dataclass
@@ -231,7 +253,17 @@ def _run_block(task: tuple[str, list[int]]) -> tuple[str, list[Rollout]]:
     policy = _WORKER.load(name)
     env.rebuild()
     return name, [
-        rollout(env, policy, s, job.variant, job.horizon, job.objects, cameras, job.term_signals)
+        rollout(
+            env,
+            policy,
+            s,
+            job.variant,
+            job.horizon,
+            job.objects,
+            cameras,
+            job.term_signals,
+            job.arms,
+        )
         for s in seeds
     ]
 

@@ -109,8 +109,15 @@ def arms_observation_values(
     return out | {k: v for k, v in one.items() if not _is_arms(k)}
 
 
-def observation_dims(objects: Sequence[str]) -> dict[str, int]:
-    """Width of every observation key of a task with these objects."""
+def observation_dims(objects: Sequence[str], arms: Sequence[str] = ()) -> dict[str, int]:
+    """Width of every observation key of a task with these objects (and with ``arms``, a
+    task of several, :func:`arms_observation_values`' keys)."""
     eye = np.eye(4)
-    obs = low_dim_observation(eye, np.zeros(2), {o: eye for o in objects}, objects)
-    return {k: int(v.size) for k, v in obs.items()}
+    poses_ = {o: eye for o in objects}
+    if arms:
+        values = arms_observation_values(
+            {a: eye for a in arms}, {a: np.zeros(2) for a in arms}, poses_, objects
+        )
+    else:
+        values = observation_values(eye, np.zeros(2), poses_, objects)
+    return {k: int(np.size(v)) for k, v in values.items()}

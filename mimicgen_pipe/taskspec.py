@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-from mimicgen_pipe.observations import observation_keys
+from mimicgen_pipe.observations import observation_dims, observation_keys
 
 ARM = "arm"  # the arm of a one-arm task's subtasks
 
@@ -155,7 +155,18 @@ class TaskSpec:
     @property
     def provided_obs_keys(self) -> tuple[str, ...]:
         """Every observation key the generator records for this task."""
-        return observation_keys(self.objects, self.arms if len(self.arms) > 1 else ())
+        return observation_keys(self.objects, self.several_arms)
+
+    @property
+    def observation_dims(self) -> dict[str, int]:
+        """Width of every observation key the generator records for this task."""
+        return observation_dims(self.objects, self.several_arms)
+
+    @property
+    def several_arms(self) -> tuple[str, ...]:
+        """The arms of a task of several; empty for a one-arm task (whose step arrays and
+        observation keys carry no arm name)."""
+        return self.arms if len(self.arms) > 1 else ()
 
     @property
     def default_obs_keys(self) -> tuple[str, ...]:

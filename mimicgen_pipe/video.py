@@ -59,23 +59,32 @@ def episode_frames(
 ) -> list[np.ndarray]:
     """Episode ``i`` of a generated (``ok``) or failed store, one frame per step rendered by
     ``render`` from the step's stored env_state, captioned: ``title`` and the step, the
-    subtask the step is in (:func:`subtask_at_steps`) with that subtask's source demo, and
-    the outcome (kept, or the subtask the attempt failed in). ``label`` names the progress
+    subtask the step is in (:func:`subtask_at_steps`) with that subtask's source demo (with
+    several arms each arm's, with the source demo in brackets), and the outcome (kept, or the
+    subtask the attempt failed in). ``label`` names the progress
     bar of the frames."""
     ep = store.episode(i)
     steps = len(ep["env_state"])
-    phase = subtask_at_steps(ep, subtasks, steps)
+    arms = tuple(dict.fromkeys(s.arm for s in subtasks))
+    if len(arms) == 1:
+        phases = {arms[0]: subtask_at_steps(ep, subtasks, steps)}
+    else:  # the generator recorded each arm's subtask (-1: the arm holds)
+        phases = {a: ep[f"subtask/{a}"] for a in arms}
     source = store.episodes["source_demo"][i]
     status = "kept (success)" if ok else "failed in subtask " + (
         subtasks[int(store.episodes["failure_reason"][i])].name)  # fmt: skip
+
+    def doing(arm: str, k: int) -> str:
+        if len(arms) == 1:
+            return (
+                f"subtask {k + 1}/{len(subtasks)} {subtasks[k].name}  source demo {int(source[k])}"
+            )
+        return f"{arm}: {subtasks[k].name} ({int(source[k])})" if k >= 0 else f"{arm}: holds"
+
     frames = []
     for t in tqdm(range(steps), desc=label, unit="frame", leave=False):
-        k = int(phase[t])
-        lines = [
-            f"{title}  step {t}/{steps}",
-            f"subtask {k + 1}/{len(subtasks)} {subtasks[k].name}  source demo {int(source[k])}",
-            status,
-        ]
+        now = "  ".join(doing(a, int(phases[a][t])) for a in arms)
+        lines = [f"{title}  step {t}/{steps}", now, status]
         frames.append(caption(render(ep["env_state"][t]), lines, ok))
     return frames
 

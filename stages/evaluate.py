@@ -18,7 +18,6 @@ from mimicgen_pipe.evaluation import (
 )
 from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
-from mimicgen_pipe.observations import observation_dims
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.training import load_rollout_policy
 from stages import add_selection_arguments, stage_params
@@ -63,7 +62,7 @@ def run(args: argparse.Namespace) -> None:
     envs.check_robot(params.backend, robot)
     e = params.evaluate
     checkpoints = checkpoints_to_evaluate(
-        policies, params.task, observation_dims(spec.objects), params.train.obs_keys, e.every_epochs
+        policies, params.task, spec.observation_dims, params.train.obs_keys, e.every_epochs
     )
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
     job = EvalJob(
@@ -74,6 +73,7 @@ def run(args: argparse.Namespace) -> None:
         variant=args.variant,
         horizon=spec.horizon,
         objects=spec.objects,
+        arms=spec.arms,
     )
     per_run, wall = evaluate_checkpoints(job, checkpoints, seeds, executor, f"evaluate {name}")
     metrics = evaluation_metrics(per_run)

@@ -24,6 +24,7 @@ from mimicgen_pipe.evaluation import (
 from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.exporters import task_description
 from mimicgen_pipe.external import (
+    ACTION_DIM,
     DEFAULT_PYTHON,
     PolicySpec,
     check_python,
@@ -33,7 +34,6 @@ from mimicgen_pipe.external import (
     probe,
 )
 from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
-from mimicgen_pipe.observations import observation_dims
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.params import Params
 from stages import add_selection_arguments, stage_params
@@ -122,7 +122,9 @@ def run(args: argparse.Namespace) -> None:
     )
     known = envs.backend_package(params.backend).cameras(robot)
     env_kwargs = {"backend": params.backend, "task": params.task, "robot": robot}
-    cameras, size = probe(policy, observation_dims(spec.objects), env_kwargs, known)
+    cameras, size = probe(
+        policy, spec.observation_dims, env_kwargs, known, ACTION_DIM * len(spec.arms)
+    )
     job = EvalJob(
         make_env=functools.partial(
             envs.make_env, params.backend, params.task, robot, params.maniskill.lean_step
@@ -131,6 +133,7 @@ def run(args: argparse.Namespace) -> None:
         variant=args.variant,
         horizon=spec.horizon,
         objects=spec.objects,
+        arms=spec.arms,
         make_cameras=camera_renderer(params, robot, cameras, size),
     )
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(episodes)]

@@ -194,7 +194,7 @@ def _lerobot_check(tmp_path, store, *flags: str) -> subprocess.CompletedProcess:
              episode_index=np.repeat(np.arange(len(LENGTHS)), lengths),
              subtask_index=exporters.subtask_labels(store, info.subtasks),
              subtasks=["grasp cubeA", "place on cubeB"], fps=20, task=info.task_description,
-             action_names=exporters.lerobot.ACTION_NAMES,
+             action_names=list(exporters.ACTION_NAMES),
              state_names=exporters.lerobot.state_names(store, ["eef_pos", "gripper_qpos"]),
              env_state_names=exporters.lerobot.state_names(store, ["cubeA_pos"]),
              video_keys=[k.removeprefix("images/") for k in videos], **videos)  # fmt: skip

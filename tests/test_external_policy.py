@@ -153,6 +153,11 @@ def test_a_policy_whose_inputs_our_env_lacks_is_refused_naming_them():
         check_hello(spec(), hello | {"observations": wide}, provided, env, ())
     with pytest.raises(InputError, match="acts with 10 numbers per step; our env takes 7"):
         check_hello(spec(), hello | {"action_dim": 10}, provided, env, ())
+    # a two-arm task's env takes 7 per arm: a one-arm policy is refused there
+    with pytest.raises(
+        InputError, match=r"acts with 7 numbers per step; our env takes 14 .*2 arms"
+    ):
+        check_hello(spec(), hello, provided, env, (), action_dim=14)
     other = {"env_kwargs": env | {"task": "lift_cube"}}
     with pytest.raises(InputError, match="trained on data of {'task': 'lift_cube'}"):
         check_hello(spec(), hello | {"meta": other}, provided, env, ())

@@ -610,6 +610,38 @@ def test_long_tasks_sit_beside_the_papers_kitchen_and_coffee_preparation():
     assert suite.long_task_blocks(params, specs[1:], MetricsSet(files), PaperResults(())) == []
 
 
+def test_two_arm_tasks_have_their_own_table_and_stay_out_of_the_long_tasks():
+    """A two-arm task: its own row with each arm's subtasks, its constraints, DGR with the
+    failures charged to each arm, and its D0 policies; the long-task table (the paper's
+    one-arm long tasks) leaves it out though it has six subtasks; the DGR table names the arm
+    of each subtask's failures."""
+    specs = [envs.task_spec("maniskill", t) for t in ("two_robot_stack_cube", "place_sphere")]
+    files = (
+        gen("two_robot_stack_cube", "D0", 86.5, purpose="dgr", failures_carry_cubeA=10,
+            failures_retreat=17, seconds_per_attempt_mean=2.3, steps=66000),
+        m("evaluate", "two_robot_stack_cube", "D0", data="source", success_rate_max=4.0,
+          success_rate_last=2.0),
+        m("evaluate", "two_robot_stack_cube", "D0", data="D0", success_rate_max=60.0,
+          success_rate_last=52.0),
+    )  # fmt: skip
+    params = suite_params(["two_robot_stack_cube", "place_sphere"])
+    ms = MetricsSet(files)
+    assert suite.long_task_blocks(params, specs, ms, PaperResults(())) == []
+    blocks = suite.two_arm_blocks(params, specs, ms)
+    assert blocks[0] == Heading(2, "Two arms")
+    (row,) = blocks[-1].rows
+    assert row[0] == "`two_robot_stack_cube`"
+    assert row[1] == (
+        "left: grasp_cubeA, carry_cubeA, stack_cubeA; right: grasp_cubeB, place_cubeB, retreat"
+    )
+    assert row[2] == "sequential: right place_cubeB → left stack_cubeA"
+    assert row[3] == "86.5 (173/200); failed: left 10, right 17"
+    assert row[4:] == ("missing", "missing", "4.0 / 2.0", "60.0 / 52.0")
+    assert suite.two_arm_blocks(params, specs[1:], ms) == []
+    dgr = suite.suite_dgr_blocks(params, specs[:1], ms, PaperResults(()))[-1].rows[0]
+    assert "left: carry_cubeA 10" in dgr[4] and "right: retreat 17" in dgr[4]
+
+
 def test_suite_ablations_compare_with_their_own_default_run():
     """A suite task's ablations have a base of their own (here action noise 0.025, not
     params.yaml's 0.05): deltas are against the run named default, and a folder without it

@@ -125,21 +125,75 @@ def test_a_failed_subtask_is_attributed_to_its_arm():
 
 # ---- ManiSkill: two_robot_stack_cube, end to end ----
 
-TWO_ROBOT_PARAMS = (
-    "task: two_robot_stack_cube\nsource: {num_demos: 3, seed: 0}\ngenerate: {workers: 1}\n"
-)
+TWO_ROBOT_PARAMS = """
+task: two_robot_stack_cube
+source: {num_demos: 3, seed: 0}
+generate: {workers: 1}
+train:
+  num_demos: 8
+  cpu: {hidden: 16, layers: 1, seq_len: 10, batch_size: 8, lr: 0.001, epochs: 2,
+        steps_per_epoch: 5, checkpoint_every: 1, seeds: [0], threads: 1}
+evaluate: {episodes: 2, every_epochs: 2, workers: 1}
+render: {episodes: 1, width: 96, height: 72}
+"""
+
+
+def source_to_generate(work, params: str, variant: str, attempts: int):
+    """The stages from the scripted source demos to ``attempts`` generated on ``variant``,
+    in ``work`` with ``params``."""
+    (work / "params.yaml").write_text(params)
+    cli("source", cwd=work)
+    cli("parse", cwd=work)
+    cli("pose_noise", cwd=work)
+    cli("generate", "--variant", variant, "--attempts", str(attempts), cwd=work)
+    return work
 
 
 @pytest.fixture(scope="module")
 def two_robot(tmp_path_factory):
     """3 scripted source demos, parsed, and 8 generated D0 attempts, by the stages."""
-    work = tmp_path_factory.mktemp("two_robot")
-    (work / "params.yaml").write_text(TWO_ROBOT_PARAMS)
-    cli("source", cwd=work)
-    cli("parse", cwd=work)
-    cli("pose_noise", cwd=work)
-    cli("generate", "--variant", "D0", "--attempts", "8", cwd=work)
-    return work
+    return source_to_generate(tmp_path_factory.mktemp("two_robot"), TWO_ROBOT_PARAMS, "D0", 8)
+
+
+@pytest.mark.sim
+def test_a_rollout_observes_both_arms_as_the_generator_recorded_them(two_robot):
+    """The observation a policy is shown in a rollout is the stored one, key for key."""
+    import envs
+    from mimicgen_pipe.evaluation import policy_observation
+
+    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
+    kept = read_store(two_robot / "data/generated/two_robot_stack_cube_D0.zarr")
+    ep = kept.episode(0)
+    env = envs.make_env("maniskill", "two_robot_stack_cube")
+    try:
+        env.set_state(kept.episodes["initial_state"][0])
+        obs = policy_observation(env, spec.objects, spec.arms)
+    finally:
+        env.close()
+    assert set(obs) == set(spec.provided_obs_keys) == {k[4:] for k in ep if k.startswith("obs/")}
+    assert {k: v.size for k, v in obs.items()} == spec.observation_dims
+    for key, value in obs.items():
+        np.testing.assert_allclose(value, ep[f"obs/{key}"][0], atol=1e-6, err_msg=key)
+    assert not np.allclose(obs["left_eef_pos"], obs["right_eef_pos"])
+
+
+@pytest.mark.sim
+def test_a_policy_trains_on_two_arm_data_and_is_evaluated(two_robot):
+    """Train reads the 14-wide actions and both arms' observations; evaluate rolls the
+    checkpoint out in the two-arm env and writes its success rates."""
+    import json
+
+    from mimicgen_pipe.training import load_checkpoint
+
+    cli("train", "--data", "D0", "--num-demos", "4", cwd=two_robot)
+    ckpts = sorted((two_robot / "data/policies/two_robot_stack_cube_D0").rglob("*.pt"))
+    assert ckpts
+    model, meta = load_checkpoint(ckpts[-1])
+    assert model.config.action_dim == 14 and meta["epoch"] == 2
+    assert {"left_eef_pos", "right_eef_pos", "cubeA_pos"} <= set(model.config.obs_keys)
+    cli("evaluate", "--data", "D0", "--variant", "D0", cwd=two_robot)
+    m = json.loads((two_robot / "metrics/evaluate_two_robot_stack_cube_D0_on_D0.json").read_text())
+    assert m["episodes"] == 2 and 0.0 <= m["success_rate_last"] <= 100.0
 
 
 @pytest.mark.sim
@@ -180,3 +234,122 @@ def test_a_two_arm_store_given_to_a_one_arm_task_is_refused(two_robot):
     assert res.returncode == 2
     assert "attrs.task is 'two_robot_stack_cube', expected 'stack_cube'" in res.stderr
     assert not (two_robot / "x.zarr").exists()
+
+
+@pytest.mark.sim
+def test_two_arm_exports_name_each_arms_actions_and_subtasks(two_robot, tmp_path):
+    """robomimic and LeRobot carry the 14-wide actions named per arm, each arm's subtask
+    labels, poses and observations; ManiSkill's one-agent trajectory format is refused."""
+    import json
+
+    import h5py
+    import pyarrow.parquet as pq
+
+    import envs
+    from mimicgen_pipe import exporters
+    from mimicgen_pipe.errors import InputError
+
+    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
+    store = exporters.read(two_robot / "data/generated/two_robot_stack_cube_D0.zarr", spec.name)
+    info = exporters.export_info(store.attrs, spec, spec.default_obs_keys, 0.25)
+    names = info.action_names
+    assert len(names) == 14 and names[0] == "left.dx" and names[13] == "right.gripper"
+
+    path, _ = exporters.write(store, "robomimic", tmp_path, info)
+    with h5py.File(path) as f:
+        assert json.loads(f["data"].attrs["action_names"]) == names
+        assert json.loads(f["data"].attrs["arms"]) == ["left", "right"]
+        demo, ep = f["data/demo_1"], store.episode(1)
+        assert demo["actions"].shape == (len(ep["actions"]), 14)
+        for arm in ("left", "right"):
+            np.testing.assert_array_equal(demo[f"subtask_index/{arm}"][:], ep[f"subtask/{arm}"])
+            assert set(demo[f"subtask_index/{arm}"][:]) - {-1} <= set(spec.arm_indices(arm))
+            np.testing.assert_allclose(
+                demo[f"datagen_info/eef_pose/{arm}"][:, :3, 3], ep[f"obs/{arm}_eef_pos"], atol=1e-5
+            )
+            np.testing.assert_array_equal(
+                demo[f"datagen_info/gripper_action/{arm}"][:, 0], ep[f"gripper/{arm}"]
+            )
+
+    path, _ = exporters.write(store, "lerobot", tmp_path / "lr", info)
+    meta = json.loads((path / "meta/info.json").read_text())["features"]
+    assert meta["action"]["names"] == names and meta["action"]["shape"] == [14]
+    state = meta["observation.state"]["names"]
+    assert "left_eef_pos.x" in state and "right_gripper_qpos.x" in state
+    assert not any("_to_" in n for n in state)
+    frames = pq.read_table(path / "data/chunk-000/file-000.parquet")
+    np.testing.assert_array_equal(
+        frames["subtask_index.right"].to_numpy(), store.data["subtask/right"]
+    )
+    with pytest.raises(InputError, match="arms left, right"):
+        exporters.check(store, "maniskill", info)
+
+
+@pytest.mark.sim
+def test_two_arm_episodes_render_with_both_arms_subtasks(two_robot):
+    """The render stage draws a two-arm store's first kept and failed episodes, a frame per
+    step, each caption naming both arms' subtasks."""
+    import json
+
+    from mimicgen_pipe.video import episode_frames
+
+    kept = read_store(two_robot / "data/generated/two_robot_stack_cube_D0.zarr")
+    failed = read_store(two_robot / "data/generated/two_robot_stack_cube_D0_failed.zarr")
+    cli("render", "--variant", "D0", cwd=two_robot)
+    m = json.loads((two_robot / "metrics/render_two_robot_stack_cube_D0.json").read_text())
+    firsts = [len(s.episode(0)["actions"]) for s in (kept, failed) if s.n_episodes]
+    assert m["frames"] == sum(firsts)
+    assert (two_robot / "media/two_robot_stack_cube_D0/kept_0.mp4").stat().st_size > 0
+
+    import envs
+
+    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
+    blank = np.zeros((72, 96, 3), np.uint8)
+    frames = episode_frames(lambda s: blank, kept, 0, spec.subtasks, "t", True, "x")
+    assert len(frames) == len(kept.episode(0)["actions"]) and frames[0].shape[1] == 96
+
+
+@pytest.fixture(scope="module")
+def lift_bar(tmp_path_factory):
+    """3 scripted source demos of two_robot_lift_bar, parsed, and 6 generated D1 attempts."""
+    params = "task: two_robot_lift_bar\nsource: {num_demos: 3, seed: 0}\ngenerate: {workers: 1}\n"
+    return source_to_generate(tmp_path_factory.mktemp("lift_bar"), params, "D1", 6)
+
+
+@pytest.mark.sim
+def test_two_robot_lift_bar_lifts_the_bar_with_both_arms_as_one(lift_bar):
+    """The coordinated lifts start at one step in every episode and end with the two hands'
+    targets placed relative to each other as in the one source demo both follow; kept
+    episodes replay to success."""
+    import envs
+
+    spec = envs.task_spec("maniskill", "two_robot_lift_bar")
+    lift = {a: spec.subtasks.index(spec.arm_subtasks(a)[-1]) for a in ("left", "right")}
+    parsed = read_store(lift_bar / "data/parsed/two_robot_lift_bar.zarr")
+    kept = read_store(lift_bar / "data/generated/two_robot_lift_bar_D1.zarr")
+    assert kept.n_episodes >= 4
+    src_targets = {a: parsed.poses(f"target_pose/{a}") for a in lift}
+    targets = {a: kept.poses(f"target_pose/{a}") for a in lift}
+    for e in range(kept.n_episodes):
+        ep = kept.episode(e)
+        starts = {a: np.flatnonzero(ep[f"subtask/{a}"] == lift[a])[0] for a in lift}
+        assert starts["left"] == starts["right"]
+        demo = kept.episodes["source_demo"][e]
+        assert demo[lift["left"]] == demo[lift["right"]]
+        last = parsed.episode_ends[int(demo[lift["left"]])] - 1
+        want = poses.pose_inv(src_targets["left"][last]) @ src_targets["right"][last]
+        end = kept.episode_ends[e] - 1
+        got = poses.pose_inv(targets["left"][end]) @ targets["right"][end]
+        np.testing.assert_allclose(got, want, atol=1e-5)
+    env = envs.make_env("maniskill", "two_robot_lift_bar")
+    try:
+        _, ok = replay_actions(
+            env,
+            kept.episodes["initial_state"][0],
+            kept.episode(0)["actions"],
+            spec.objects,
+            spec.arms,
+        )
+        assert ok
+    finally:
+        env.close()

@@ -56,6 +56,8 @@ class Renderer(CameraRenderer):
 
         self._torch = torch
         task = load_task("maniskill", task)
+        # a task of several arms keeps ManiSkill's own agents (envs/maniskill/two_arm.py)
+        agents = {} if task.arm_agents else {"robot_uids": ManiSkillEnv.agent_uid_for(task, robot)}
         self._env = gym.make(
             ManiSkillEnv.env_id_for(task),
             obs_mode="none",
@@ -64,11 +66,11 @@ class Renderer(CameraRenderer):
             sim_backend="physx_cpu",
             render_backend="cpu",
             render_mode="rgb_array",
-            robot_uids=ManiSkillEnv.agent_uid_for(task, robot),
+            **agents,
             **task.env_kwargs,
             human_render_camera_configs={
                 "width": width, "height": height, "fov": FOV,
-                "pose": sapien_utils.look_at(list(EYE), list(TARGET)),
+                "pose": sapien_utils.look_at(*map(list, task.video_view or (EYE, TARGET))),
             },
         )  # fmt: skip
         self._env.reset(seed=0)  # gym renders only after a reset

@@ -5,6 +5,7 @@ agents (``task.arm_agents``), a Panda under pd_ee_delta_pose."""
 
 from __future__ import annotations
 
+import math
 import os
 
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
@@ -14,6 +15,7 @@ import torch  # noqa: E402
 
 from envs import load_task  # noqa: E402
 from envs.maniskill.env import ManiSkillEnv, _pose_of, make_gym_env  # noqa: E402
+from mimicgen_pipe import poses  # noqa: E402
 from mimicgen_pipe.controller import (  # noqa: E402
     DeltaPoseController,
     actions_to_target_poses,
@@ -144,3 +146,44 @@ class TwoArmManiSkillEnv:
 
     def close(self) -> None:
         self._env.close()
+
+
+# -- for the task files' scripted two-arm demonstrators ----------------------------------------
+STEP, TURN = 0.012, 0.08  # [m], [rad]: a scripted arm's largest move per control step
+
+
+def yaw_of(rotation: np.ndarray) -> float:
+    """The angle [rad] about world z of a rotation's x axis."""
+    return math.atan2(rotation[1, 0], rotation[0, 0])
+
+
+def rot_z(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def pose_at(rotation: np.ndarray, xyz) -> np.ndarray:
+    """A 4x4 pose from a 3x3 rotation and a position [m]."""
+    t = np.eye(4)
+    t[:3, :3], t[:3, 3] = rotation, xyz
+    return t
+
+
+def grasp_rotation(tcp: np.ndarray, obj: np.ndarray, period: float, offset: float = 0.0):
+    """The TCP's rotation (4x4 ``tcp``, world) turned about world z the least way that puts its
+    x axis at ``offset`` [rad] from the object's (4x4 ``obj``), an object that looks the same
+    every ``period`` [rad] (a cube pi/2, a bar pi)."""
+    d = yaw_of(obj[:3, :3]) + offset - yaw_of(tcp[:3, :3])
+    return rot_z((d + period / 2) % period - period / 2) @ tcp[:3, :3]
+
+
+def step_toward(eef: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, bool]:
+    """A target at most STEP and TURN from ``eef`` on the way to ``goal`` (4x4, world), and
+    whether it is ``goal``."""
+    d = goal[:3, 3] - eef[:3, 3]
+    n = float(np.linalg.norm(d))
+    rel = poses.matrix_to_axis_angle(goal[:3, :3] @ eef[:3, :3].T)
+    angle = float(np.linalg.norm(rel))
+    f = min(1.0, STEP / n if n > 0 else 1.0, TURN / angle if angle > 0 else 1.0)
+    out = pose_at(poses.axis_angle_to_matrix(f * rel) @ eef[:3, :3], eef[:3, 3] + f * d)
+    return out, f == 1.0

@@ -40,7 +40,7 @@ from mimicgen_pipe.outputs import OutputKind, directory_kind
 from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.segments import subtask_at_steps
 from mimicgen_pipe.store import EpisodeStore, image_key, open_store, read_store, store_cameras
-from mimicgen_pipe.taskspec import SubtaskSpec, TaskSpec
+from mimicgen_pipe.taskspec import ARM, SubtaskSpec, TaskSpec
 
 KINDS = ("source", "generated", "failed")  # the stores export takes
 
@@ -55,7 +55,8 @@ class ExportInfo:
     this order as LeRobot's ``observation.state`` and ``observation.environment_state``. fps:
     control frequency [Hz]. valid_fraction: share of episodes in robomimic's ``mask/valid``
     (the last ones), the rest in ``mask/train``. subtasks: the task's subtasks in order (the
-    per-step subtask labels index them).
+    per-step subtask labels index them). arms: a task of several arms' arms, in the order of
+    their 7 action entries each (TaskSpec.several_arms); empty for one arm.
     """
 
     env_args: dict[str, Any]
@@ -64,8 +65,23 @@ class ExportInfo:
     fps: int
     valid_fraction: float = 0.1
     subtasks: tuple[SubtaskSpec, ...] = ()
+    arms: tuple[str, ...] = ()
+
+    @property
+    def action_names(self) -> list[str]:
+        """One name per action entry: dx, dy, dz, drx, dry, drz, gripper; with several arms
+        each arm's seven prefixed with its name (``left.dx``)."""
+        if not self.arms:
+            return list(ACTION_NAMES)
+        return [f"{arm}.{n}" for arm in self.arms for n in ACTION_NAMES]
+
+    @property
+    def label_arms(self) -> tuple[str, ...]:
+        """The arms with their own subtask labels: ARM alone for one arm."""
+        return self.arms or (ARM,)
 
 
+ACTION_NAMES = ("dx", "dy", "dz", "drx", "dry", "drz", "gripper")  # one arm's 7 action entries
 ENV_TYPE = 2  # robomimic's EnvType.GYM_TYPE: env_kwargs rebuild a gym-style env, not robosuite
 
 
@@ -87,6 +103,7 @@ def export_info(
         fps=int(attrs["control_freq"]),
         valid_fraction=valid_fraction,
         subtasks=tuple(spec.subtasks),
+        arms=spec.several_arms,
     )
 
 
@@ -161,25 +178,34 @@ def episode_images(store: EpisodeStore, camera: str) -> Iterator[np.ndarray]:
         yield view.read_rows(image_key(camera), [i])
 
 
-def subtask_labels(store: EpisodeStore, subtasks: Sequence[SubtaskSpec]) -> np.ndarray | None:
-    """(N_steps,) int64: the subtask each step belongs to, an index into ``subtasks``. From the
-    store's subtask ends (``meta/episodes/subtask_term_index``: subtask i + 1 starts at end
-    i) where it has them, else from its term signals as the generator walks them (subtask
-    i + 1 starts at the first rise of subtask i's term signal after subtask i started; an
-    episode that fails stays in the subtask whose signal never rose). None for a store
-    with neither (a source store brought in from a file without its signals)."""
-    if not subtasks:
+def subtask_labels(
+    store: EpisodeStore, subtasks: Sequence[SubtaskSpec], arm: str = ARM
+) -> np.ndarray | None:
+    """(N_steps,) int64: the subtask of ``arm`` each step belongs to, an index into
+    ``subtasks`` (-1: a step at which the arm of a task of several has no subtask and holds).
+    From the arm's subtask at each step where the generator recorded it (``subtask/<arm>``,
+    several arms), else from the store's subtask ends (``meta/episodes/subtask_term_index``:
+    the arm's subtask k + 1 starts at its end k), else from its term signals as the generator
+    walks them (subtask k + 1 starts at the first rise of subtask k's term signal after
+    subtask k started; an episode that fails stays in the subtask whose signal never rose).
+    None for a store with none of them (a source store brought in from a file without its
+    signals) and for an arm without subtasks."""
+    mine = [i for i, s in enumerate(subtasks) if s.arm == arm]
+    if not mine:
         return None
-    lengths = store.lengths
+    if f"subtask/{arm}" in store.data:
+        return np.asarray(store.data[f"subtask/{arm}"], np.int64)
+    own, index, lengths = [subtasks[i] for i in mine], np.asarray(mine, np.int64), store.lengths
     if "subtask_term_index" in store.episodes:
-        ends = store.episodes["subtask_term_index"]
+        ending = [i for i, s in enumerate(subtasks) if s.term_signal is not None]
+        ends = store.episodes["subtask_term_index"][:, [ending.index(i) for i in mine[:-1]]]
         parts = [
-            np.searchsorted(e, np.arange(n), side="right")
+            index[np.searchsorted(e, np.arange(n), side="right")]
             for e, n in zip(ends, lengths, strict=True)
         ]
-    elif all(f"subtask_signals/{s.term_signal}" in store.data for s in subtasks[:-1]):
+    elif all(f"subtask_signals/{s.term_signal}" in store.data for s in own[:-1]):
         parts = [
-            subtask_at_steps(store.episode(i), subtasks, int(n)) for i, n in enumerate(lengths)
+            index[subtask_at_steps(store.episode(i), own, int(n))] for i, n in enumerate(lengths)
         ]
     else:
         return None

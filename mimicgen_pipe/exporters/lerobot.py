@@ -9,6 +9,9 @@ Per frame (``data/chunk-000/file-000.parquet``), world frame, float32:
   end's controller], gripper [+1 open, -1 closed];
 - ``subtask_index`` int64: the subtask the frame belongs to (exporters.subtask_labels), a row
   of ``meta/subtasks.parquet``;
+- with several arms (ExportInfo.arms): ``action`` holds each arm's 7 in turn, named
+  ``<arm>.dx`` ...; ``observation.state`` each arm's keys (``<arm>_eef_pos`` ...); one
+  ``subtask_index.<arm>`` per arm (-1 where the arm holds without a subtask);
 - LeRobot's ``timestamp`` [s], ``frame_index``, ``episode_index``, ``index`` (global) and
   ``task_index``.
 
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -52,7 +56,6 @@ VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.m
 EPISODES_PATH = "meta/episodes/chunk-000/file-000.parquet"
 CHUNKS_SIZE = 1000  # files per chunk folder, LeRobot's
 VIDEO_FILE_MB = 200  # LeRobot's video_files_size_in_mb: the next episode starts a new file
-ACTION_NAMES = ["dx", "dy", "dz", "drx", "dry", "drz", "gripper"]
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)  # LeRobot's stats keys q01 ... q99
 INDEX_FEATURES = {  # LeRobot's default per-frame features
     "timestamp": {"dtype": "float32", "shape": [1], "names": None},
@@ -84,8 +87,10 @@ def check(store: EpisodeStore, info) -> str | None:
 
 def is_robot_key(key: str) -> bool:
     """An observation key of the robot (observation.state), not of an object: eef_pos,
-    eef_quat, gripper_qpos; eef_to_<obj>_pos is the object's, seen from the gripper."""
-    return key.startswith(("eef_", "gripper_")) and not key.startswith("eef_to_")
+    eef_quat, gripper_qpos, or one of them after an arm's name (left_eef_pos);
+    eef_to_<obj>_pos is the object's, seen from the gripper."""
+    own = re.sub(r"^[A-Za-z0-9]+_(?=eef_|gripper_)", "", key)
+    return own.startswith(("eef_", "gripper_")) and not own.startswith("eef_to_")
 
 
 def state_keys(obs_keys: Sequence[str]) -> dict[str, list[str]]:
@@ -330,11 +335,19 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
                   "names": state_names(store, keys)}
         for feature, keys in parts.items()
     }  # fmt: skip
-    features["action"] = {"dtype": "float32", "shape": [7], "names": ACTION_NAMES}
-    labels = subtask_labels(store, info.subtasks)
-    if labels is not None:
-        frames["subtask_index"] = labels
-        features["subtask_index"] = {"dtype": "int64", "shape": [1], "names": None}
+    action_names = info.action_names
+    features["action"] = {"dtype": "float32", "shape": [len(action_names)], "names": action_names}
+    labels = {
+        ("subtask_index" if not info.arms else f"subtask_index.{a}"): subtask_labels(
+            store, info.subtasks, a
+        )
+        for a in info.label_arms
+    }
+    labelled = all(v is not None for v in labels.values())
+    if labelled:
+        for key, rows in labels.items():
+            frames[key] = rows
+            features[key] = {"dtype": "int64", "shape": [1], "names": None}
     features |= INDEX_FEATURES
     table = pa.table({k: _column(v) for k, v in frames.items()})
     data_file = path / DATA_PATH.format(chunk_index=0, file_index=0)
@@ -376,7 +389,7 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
     pq.write_table(pa.table(episodes), path / EPISODES_PATH)
     tasks = _index_table(None, "task_index", [info.task_description])
     pq.write_table(tasks, path / "meta/tasks.parquet")
-    if labels is not None:
+    if labelled:
         names = [subtask_text(s.name) for s in info.subtasks]
         pq.write_table(
             _index_table("subtask", "subtask_index", names), path / "meta/subtasks.parquet"

@@ -52,6 +52,11 @@ def check(store: EpisodeStore, info) -> str | None:
     backend = info.env_args.get("env_kwargs", {}).get("backend")
     if backend != "maniskill":
         return f"a {backend} store (ManiSkill trajectories need the maniskill back end)"
+    if info.arms:
+        return (
+            f"a task with arms {', '.join(info.arms)} (ManiSkill trajectories are written "
+            "for one agent's actions; export robomimic or lerobot)"
+        )
     return missing_keys(store, REQUIRED) or (None if store.n_episodes else "no episodes")
 
 

@@ -22,6 +22,12 @@ Layout written (robomimic's dataset schema; MimicGen's generated files add datag
       src_demo_inds     (M,) int64: the source demo each subtask's segment came from
   mask/train, mask/valid  demo names (bytes): the last valid_fraction of demos are valid
 
+A task with several arms (ExportInfo.arms) has actions (T, 7 x arms), each arm's 7 in the
+order of ``data.attrs["arms"]`` (JSON), named by ``data.attrs["action_names"]`` (JSON:
+``left.dx`` ... ``right.gripper``); per arm ``subtask_index/<arm>`` (-1 where the arm holds
+without a subtask), ``datagen_info/eef_pose/<arm>``, ``target_pose/<arm>`` and
+``gripper_action/<arm>``; the observations carry each arm's keys prefixed with its name.
+
 A store without term signals or subtask ends (a source store brought in from a file) has no
 ``subtask_index`` and no ``subtasks`` attribute.
 """
@@ -38,6 +44,7 @@ import numpy as np
 
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.store import EpisodeStore, image_key, store_cameras
+from mimicgen_pipe.taskspec import arm_key
 
 # Images: gzip (HDF5's own deflate filter, which every HDF5 reader has; h5py's lzf is h5py's
 # alone and kept 1.38x of 84x84 renders against gzip's 1.56x) at level 4, over chunks of 4
@@ -52,10 +59,17 @@ WRITES = r"demos\.hdf5"
 REQUIRED = ("actions", "env_state", "eef_pose", "target_pose", "gripper")
 
 
+def _required(info) -> list[str]:
+    """The arrays a store needs: REQUIRED, each arm's own under its name (arm_key)."""
+    own = ("eef_pose", "target_pose", "gripper")
+    arms = [arm_key(k, a) for a in info.label_arms for k in own]
+    return [k for k in REQUIRED if k not in own] + arms + [f"obs/{k}" for k in info.obs_keys]
+
+
 def check(store: EpisodeStore, info) -> str | None:
     from mimicgen_pipe.exporters import missing_images, missing_keys
 
-    why = missing_keys(store, list(REQUIRED) + [f"obs/{k}" for k in info.obs_keys])
+    why = missing_keys(store, _required(info))
     if why is None and store.n_episodes == 0:
         why = "no episodes"
     return why or missing_images(store)
@@ -93,9 +107,12 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
     images = {image_key(c): episode_images(store, c) for c in store_cameras(store.attrs)}
     obs_keys = [k for k in store.data if k.startswith("obs/") and k not in images]
     success = store.episodes.get("success", np.ones(store.n_episodes, bool))
-    pose_keys = ["eef_pose", "target_pose"] + [f"object_poses/{o}" for o in objects]
+    arms = info.label_arms
+    own = [arm_key(k, a) for k in ("eef_pose", "target_pose") for a in arms]
+    pose_keys = own + [f"object_poses/{o}" for o in objects]
     matrices = {key: store.poses(key) for key in pose_keys}  # (N_steps, 4, 4) each
-    labels = subtask_labels(store, info.subtasks)
+    labels = {arm_key("subtask_index", a): subtask_labels(store, info.subtasks, a) for a in arms}
+    labelled = all(v is not None for v in labels.values())
     image_bytes = 0
     with h5py.File(path, "w") as f:
         data = f.create_group("data")
@@ -114,8 +131,9 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
             g.create_dataset("rewards", data=(last * bool(success[i])).astype(np.float64))
             g.create_dataset("dones", data=last)
             s, e = store.episode_starts[i], store.episode_ends[i]
-            if labels is not None:
-                g.create_dataset("subtask_index", data=labels[s:e])
+            if labelled:
+                for key, rows in labels.items():
+                    g.create_dataset(key, data=rows[s:e])
             for key, per_episode in images.items():
                 image_bytes += _write_images(g, key, next(per_episode))
             for key in obs_keys:
@@ -130,13 +148,19 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
             for key in signals:
                 name = key.removeprefix("subtask_signals/")
                 info_g.create_dataset(f"subtask_term_signals/{name}", data=ep[key].astype(np.int64))
-            info_g.create_dataset("gripper_action", data=ep["gripper"][:, None])
+            for a in arms:
+                info_g.create_dataset(
+                    arm_key("gripper_action", a), data=ep[arm_key("gripper", a)][:, None]
+                )
             if "source_demo" in store.episodes:
                 g.create_dataset("src_demo_inds", data=store.episodes["source_demo"][i])
         data.attrs["total"] = int(store.episode_ends[-1])
         data.attrs["env_args"] = json.dumps(info.env_args)
-        if labels is not None:
+        if labelled:
             data.attrs["subtasks"] = json.dumps([sub.name for sub in info.subtasks])
+        if info.arms:
+            data.attrs["arms"] = json.dumps(list(info.arms))
+            data.attrs["action_names"] = json.dumps(info.action_names)
         train, valid = split(store.n_episodes, info.valid_fraction)
         for name, idx in (("train", train), ("valid", valid)):
             f.create_dataset(f"mask/{name}", data=np.array([f"demo_{i}" for i in idx], dtype="S"))

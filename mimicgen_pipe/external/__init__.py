@@ -304,10 +304,12 @@ def check_hello(
     provided: Mapping[str, tuple[tuple[int, ...], str]],
     env_kwargs: Mapping[str, str],
     cameras: Sequence[str],
+    action_dim: int = ACTION_DIM,
 ) -> None:
     """InputError, before any rollout, for a policy our env cannot run: one naming every
     input it reads that ``provided`` lacks (images among them: the rollouts picture the
-    arm's ``cameras`` alone), or of another shape; for an action size other than ours; for
+    arm's ``cameras`` alone), or of another shape; for an action size other than ours
+    (``action_dim``: 7 per arm of the task); for
     checkpoint ``meta`` naming another back end, task or robot than ``env_kwargs``."""
     needed = hello["observations"]
     missing = [k for k in needed if k not in provided]
@@ -334,10 +336,15 @@ def check_hello(
         raise InputError(
             f"{spec.name}: reads {detail}; train.obs_keys {list(spec.obs_keys)} gives ours"
         )
-    if hello["action_dim"] != ACTION_DIM:
+    if hello["action_dim"] != action_dim:
         raise InputError(
             f"{spec.name}: acts with {hello['action_dim']} numbers per step; our env takes "
-            f"{ACTION_DIM} (dx, dy, dz, drx, dry, drz, gripper)"
+            f"{action_dim} (dx, dy, dz, drx, dry, drz, gripper"
+            + (
+                f", for each of {action_dim // ACTION_DIM} arms)"
+                if action_dim > ACTION_DIM
+                else ")"
+            )
         )
     theirs = (hello.get("meta") or {}).get("env_kwargs") or {}
     other = {k: theirs[k] for k in env_kwargs if k in theirs and theirs[k] != env_kwargs[k]}
@@ -353,15 +360,17 @@ def probe(
     obs_dims: Mapping[str, int],
     env_kwargs: Mapping[str, str],
     known: Sequence[str],
+    action_dim: int = ACTION_DIM,
 ) -> tuple[tuple[str, ...], tuple[int, int] | None]:
     """Start the policy's server and check, before any rollout, that our env gives it every
     input (:func:`check_hello`; ``obs_dims``: the task's observation widths, ``known``: the
-    arm's cameras). Returns the cameras whose images it reads and their (height, width)."""
+    arm's cameras) and takes its actions (``action_dim`` wide). Returns the cameras whose
+    images it reads and their (height, width)."""
     with start_policy(spec) as policy:
         hello = policy.hello
     cameras, size = policy_cameras(spec, hello, known)
     provided = provided_inputs(spec.format, obs_dims, spec.obs_keys, cameras, size)
-    check_hello(spec, hello, provided, env_kwargs, known)
+    check_hello(spec, hello, provided, env_kwargs, known, action_dim)
     return cameras, size
 
 

@@ -88,6 +88,7 @@ def build_suite_report(
         *suite.object_transfer_blocks(params, specs, ms, paper),
         *suite.suite_policy_blocks(params, specs, ms, paper),
         *suite.long_task_blocks(params, specs, ms, paper),
+        *suite.two_arm_blocks(params, specs, ms),
         *scaling_blocks(params, scaling_ms, figures),
     ]
     for spec in specs:

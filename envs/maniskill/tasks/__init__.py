@@ -103,6 +103,8 @@ class ManiSkillTask:
     demonstrator: a two-arm task's scripted demonstrator, (env, seed) -> the actions
         (T, 7 per arm) of one demo on the task's env (TwoArmManiSkillEnv, reset to the seed's
         D0 scene), or None when the demo fails.
+    video_view: the render stage's camera, (eye, target) in the world frame [m]; None:
+        envs/maniskill/render.py's view of one arm and its workspace.
     """
 
     spec: TaskSpec
@@ -123,6 +125,7 @@ class ManiSkillTask:
     batched: bool = False
     arm_agents: dict[str, int] = field(default_factory=dict)
     demonstrator: Callable[[Any, int], Any] | None = None
+    video_view: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
 
     def __post_init__(self) -> None:
         if self.frames and self.rebuild_seed != CREATION_SEED:

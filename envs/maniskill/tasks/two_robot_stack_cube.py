@@ -17,6 +17,9 @@ Reset variants (world frame; the table centre is the origin):
   near y = 0 both arms reach it.
 - D1: the cubes over twice ManiSkill's spread (A: x in [-0.1, 0.1], y in [-0.25, -0.05];
   B: x in [-0.1, 0.1], y in [0.05, 0.25]), the goal as in D0.
+- D2: the cubes over three times ManiSkill's x spread and y out to 30 cm from the centre (A:
+  x in [-0.15, 0.15], y in [-0.3, -0.08]; B: mirrored, y in [0.08, 0.3]), the goal as in D0:
+  B at least 4 cm from the goal disc's edge.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ from typing import Any
 import numpy as np
 
 from envs.maniskill.tasks import FULL_YAW, ManiSkillTask
+from envs.maniskill.two_arm import grasp_rotation, step_toward
+from envs.maniskill.two_arm import pose_at as _pose
 from mimicgen_pipe.taskspec import (
     ObjectBounds,
     ResetVariant,
@@ -39,11 +44,13 @@ OBJECTS = ("cubeA", "cubeB", "goal")
 GOAL = ObjectBounds((-0.05, 0.05), (-0.02, 0.02), (0.0, 0.0))
 
 
-def _variant(spread: float) -> ResetVariant:
+def _variant(x: float, y: tuple[float, float]) -> ResetVariant:
+    """Cube A in x in [-x, x] and y in ``y``, cube B mirrored across y = 0 (on the right
+    arm's side), the goal disc in GOAL."""
     return ResetVariant(
         {
-            "cubeA": ObjectBounds((-spread, spread), (-0.15 - spread, -0.15 + spread), FULL_YAW),
-            "cubeB": ObjectBounds((-spread, spread), (0.15 - spread, 0.15 + spread), FULL_YAW),
+            "cubeA": ObjectBounds((-x, x), y, FULL_YAW),
+            "cubeB": ObjectBounds((-x, x), (-y[1], -y[0]), FULL_YAW),
             "goal": GOAL,
         }
     )
@@ -84,44 +91,13 @@ def evaluate(env) -> dict[str, bool]:
 
 
 # -- the scripted demonstrator ----------------------------------------------------------------
-STEP, TURN = 0.012, 0.08  # [m], [rad] per control step at most
 ABOVE, LIFT, CUBE = 0.08, 0.16, 0.04  # [m]
 
 
-def _yaw(r: np.ndarray) -> float:
-    return math.atan2(r[1, 0], r[0, 0])
-
-
-def _rz(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def _grasp_rotation(tcp: np.ndarray, obj: np.ndarray) -> np.ndarray:
-    """The TCP's rotation turned about world z to the object's faces (the nearest of its
-    four yaws, a cube being the same every 90 degrees)."""
-    d = (_yaw(obj[:3, :3]) - _yaw(tcp[:3, :3]) + math.pi / 4) % (math.pi / 2) - math.pi / 4
-    return _rz(d) @ tcp[:3, :3]
-
-
-def _pose(rotation: np.ndarray, xyz) -> np.ndarray:
-    t = np.eye(4)
-    t[:3, :3], t[:3, 3] = rotation, xyz
-    return t
-
-
-def _toward(eef: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, bool]:
-    """A target at most STEP and TURN from ``eef`` on the way to ``goal``; whether it is
-    ``goal``."""
-    from mimicgen_pipe import poses
-
-    d = goal[:3, 3] - eef[:3, 3]
-    n = float(np.linalg.norm(d))
-    rel = poses.matrix_to_axis_angle(goal[:3, :3] @ eef[:3, :3].T)
-    angle = float(np.linalg.norm(rel))
-    f = min(1.0, STEP / n if n > 0 else 1.0, TURN / angle if angle > 0 else 1.0)
-    out = _pose(poses.axis_angle_to_matrix(f * rel) @ eef[:3, :3], eef[:3, 3] + f * d)
-    return out, f == 1.0
+    """The TCP's rotation turned about world z to the object's faces (a cube looks the same
+    every 90 degrees)."""
+    return grasp_rotation(tcp, obj, math.pi / 2)
 
 
 def demonstrate(env, seed: int) -> np.ndarray | None:
@@ -191,7 +167,7 @@ def demonstrate(env, seed: int) -> np.ndarray | None:
                 goal_pose, grip[arm], hold = plan[arm][0], plan[arm][1], 8 if move == "open" else 0
             else:
                 goal_pose, grip[arm], hold = move
-            target, there = _toward(eef, goal_pose)
+            target, there = step_toward(eef, goal_pose)
             parts.append(arms[arm].target_pose_to_action(target, grip[arm]))
             if there and np.linalg.norm(eef[:3, 3] - goal_pose[:3, 3]) < 0.004:
                 held[arm] += 1
@@ -215,7 +191,11 @@ TASK = ManiSkillTask(
             SubtaskSpec("place_cubeB", "goal", "cubeB_released_on_goal", arm="right"),
             SubtaskSpec("retreat", "goal", None, arm="right"),
         ),
-        reset_variants={"D0": _variant(0.05), "D1": _variant(0.1)},
+        reset_variants={
+            "D0": _variant(0.05, (-0.2, -0.1)),
+            "D1": _variant(0.1, (-0.25, -0.05)),
+            "D2": _variant(0.15, (-0.3, -0.08)),
+        },
         horizon=600,
         paper_task="none: two arms, beyond the paper (its limitation 9)",
         constraints=(
@@ -229,4 +209,5 @@ TASK = ManiSkillTask(
     initialize=initialize,
     arm_agents={"left": 0, "right": 1},
     demonstrator=demonstrate,
+    video_view=((0.55, 0.0, 0.75), (-0.15, 0.0, 0.05)),  # from the side, both arms in view
 )
