@@ -177,13 +177,13 @@ def grasp_rotation(tcp: np.ndarray, obj: np.ndarray, period: float, offset: floa
     return rot_z((d + period / 2) % period - period / 2) @ tcp[:3, :3]
 
 
-def step_toward(eef: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, bool]:
-    """A target at most STEP and TURN from ``eef`` on the way to ``goal`` (4x4, world), and
-    whether it is ``goal``."""
+def step_toward(eef: np.ndarray, goal: np.ndarray, step: float = STEP) -> tuple[np.ndarray, bool]:
+    """A target at most ``step`` [m] and TURN from ``eef`` on the way to ``goal`` (4x4,
+    world), and whether it is ``goal``."""
     d = goal[:3, 3] - eef[:3, 3]
     n = float(np.linalg.norm(d))
     rel = poses.matrix_to_axis_angle(goal[:3, :3] @ eef[:3, :3].T)
     angle = float(np.linalg.norm(rel))
-    f = min(1.0, STEP / n if n > 0 else 1.0, TURN / angle if angle > 0 else 1.0)
+    f = min(1.0, step / n if n > 0 else 1.0, TURN / angle if angle > 0 else 1.0)
     out = pose_at(poses.axis_angle_to_matrix(f * rel) @ eef[:3, :3], eef[:3, 3] + f * d)
     return out, f == 1.0

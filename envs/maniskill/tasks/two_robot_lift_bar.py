@@ -2,7 +2,7 @@
 between two Pandas that face each other across the table (bases at y = -0.75 and +0.75). Each
 arm grasps its end of the bar; then both lift it together, level, 10 cm and more. Success:
 both hands hold the bar, its centre at least 10 cm above the table, its long axis within
-0.15 rad of level.
+0.1 rad of level.
 
 Arms: ``left`` (ManiSkill's agent 0, at y = -0.75) and ``right`` (agent 1). Subtasks: each
 arm grasps its end (reference object: the bar; both end when the bar is held by both hands,
@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from envs.maniskill.tasks import ManiSkillTask
-from envs.maniskill.two_arm import grasp_rotation, pose_at, step_toward
+from envs.maniskill.two_arm import STEP, grasp_rotation, pose_at, step_toward
 from mimicgen_pipe.taskspec import (
     ObjectBounds,
     ResetVariant,
@@ -41,7 +41,7 @@ OBJECTS = ("bar",)
 BAR_HALF = (0.015, 0.2, 0.015)  # [m] half extents along the bar's own x, y (long), z
 BAR_DENSITY = 300.0  # [kg/m^3]
 GRIP = 0.15  # [m] from the bar's centre to where each hand holds it
-LIFTED, LEVEL = 0.10, 0.15  # [m] centre height for success; [rad] largest tilt
+LIFTED, LEVEL = 0.10, 0.1  # [m] centre height for success; [rad] largest tilt
 
 
 def _variant(x: float, y: float, yaw: float) -> ResetVariant:
@@ -77,7 +77,6 @@ def initialize(env, env_idx, variant: ResetVariant) -> None:
 def _tilt(env) -> Any:
     """The angle [rad] between the bar's long axis and the table, per scene."""
     import torch
-
     from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 
     axis = quaternion_to_matrix(env.bar.pose.q)[:, :, 1]  # the bar's y axis in the world
@@ -98,13 +97,19 @@ def evaluate(env) -> dict[str, bool]:
 
 
 # -- the scripted demonstrator ----------------------------------------------------------------
-ABOVE, LIFT = 0.08, 0.16  # [m] approach height above the grasp; the lift
+ABOVE = 0.08  # [m] approach height above the grasp
+LIFT = (0.10, 0.22)  # [m] the range a demo's lift height is drawn from
+LIFT_STEP = (0.005, 0.012)  # [m] the range of a demo's lift speed per step
 
 
 def demonstrate(env, seed: int) -> np.ndarray | None:
     """Both arms in step: above their ends of the bar, down, close (once both are there), a
-    pause, then up by 16 cm together (the same move each step), and a pause. Each arm moves
-    at most 1.2 cm and 0.08 rad per step."""
+    pause, then up together (the same move each step) by a height and at a speed drawn per
+    demo from ``seed`` (LIFT, LIFT_STEP), and a pause. Each arm moves at most 1.2 cm and
+    0.08 rad per step. Demos lift differently, so two arms lifting by two demos would tilt
+    the bar: the lifts must follow one demo (the coordinated constraint)."""
+    rng = np.random.default_rng(seed)
+    lift, lift_step = rng.uniform(*LIFT), rng.uniform(*LIFT_STEP)
     arms = {a: env.arm(a) for a in ("left", "right")}
     bar = env.object_poses()["bar"]
     along = bar[:3, 1]  # the bar's long axis in the world
@@ -114,22 +119,22 @@ def demonstrate(env, seed: int) -> np.ndarray | None:
     # the fingers close across the bar: the TCP's x axis along the bar's long axis
     rot = {a: grasp_rotation(arms[a].eef_pose(), bar, math.pi, math.pi / 2) for a in arms}
     up = np.array([0.0, 0.0, ABOVE])
-    phases = [  # per arm (target position, gripper), then steps to hold once both are there
-        ({a: (ends[a] + up, 1.0) for a in arms}, 0),
-        ({a: (ends[a], 1.0) for a in arms}, 3),
-        ({a: (ends[a], -1.0) for a in arms}, 10),
-        ({a: (ends[a] + (0, 0, LIFT), -1.0) for a in arms}, 8),
+    phases = [  # per arm (target position, gripper); steps to hold once both are there; speed
+        ({a: (ends[a] + up, 1.0) for a in arms}, 0, STEP),
+        ({a: (ends[a], 1.0) for a in arms}, 3, STEP),
+        ({a: (ends[a], -1.0) for a in arms}, 10, STEP),
+        ({a: (ends[a] + (0, 0, lift), -1.0) for a in arms}, 8, lift_step),
     ]
     actions, phase, held = [], 0, 0
     for _ in range(400):
         if phase == len(phases):
             return np.asarray(actions, np.float32) if env.is_success() else None
-        goals, hold = phases[phase]
+        goals, hold, step = phases[phase]
         parts, there = [], True
         for a in ("left", "right"):
             eef = arms[a].eef_pose()
             goal = pose_at(rot[a], goals[a][0])
-            target, arrived = step_toward(eef, goal)
+            target, arrived = step_toward(eef, goal, step)
             there &= arrived and np.linalg.norm(eef[:3, 3] - goal[:3, 3]) < 0.004
             parts.append(arms[a].target_pose_to_action(target, goals[a][1]))
         action = np.concatenate(parts).astype(np.float32)
@@ -160,7 +165,9 @@ TASK = ManiSkillTask(
         horizon=300,
         paper_task="none: two arms, beyond the paper (its limitation 9)",
         constraints=(
-            SubtaskConstraint("coordinated", ("left", "lift_bar_left"), ("right", "lift_bar_right")),
+            SubtaskConstraint(
+                "coordinated", ("left", "lift_bar_left"), ("right", "lift_bar_right")
+            ),
         ),
     ),
     base_env_id="TwoRobotStackCube-v1",
