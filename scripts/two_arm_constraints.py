@@ -4,7 +4,7 @@ every subtask and starts each subtask as soon as its own previous one ends), on 
 parsed source demos, attempt seeds and action noise.
 
     python scripts/two_arm_constraints.py --task two_robot_lift_bar --variants D0 D1 \\
-        --attempts 200 --out metrics/two_arm_constraints_two_robot_lift_bar.json
+        --attempts 200 --out metrics/experiments/two_arm_constraints_two_robot_lift_bar.json
 
 Prints a line per (variant, spec) and writes the figures to ``--out``.
 """
