@@ -57,7 +57,10 @@ def test_each_arm_has_its_own_ordered_subtasks():
 
 @pytest.mark.parametrize(
     "backend, several",
-    [("maniskill", {"two_robot_stack_cube", "two_robot_lift_bar"}), ("pybullet", set())],
+    [
+        ("maniskill", {"two_robot_stack_cube", "two_robot_lift_bar", "two_robot_pick_cube"}),
+        ("pybullet", set()),
+    ],
 )
 def test_every_other_task_of_the_package_is_the_one_arm_case(backend, several):
     for name in envs.task_names(backend):
