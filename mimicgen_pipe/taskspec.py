@@ -163,6 +163,11 @@ class TaskSpec:
         return observation_dims(self.objects, self.several_arms)
 
     @property
+    def action_dim(self) -> int:
+        """Entries of one action: 7 per arm (delta pose and gripper, in arm order)."""
+        return 7 * len(self.arms)
+
+    @property
     def several_arms(self) -> tuple[str, ...]:
         """The arms of a task of several; empty for a one-arm task (whose step arrays and
         observation keys carry no arm name)."""

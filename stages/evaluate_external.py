@@ -24,7 +24,6 @@ from mimicgen_pipe.evaluation import (
 from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.exporters import task_description
 from mimicgen_pipe.external import (
-    ACTION_DIM,
     DEFAULT_PYTHON,
     PolicySpec,
     check_python,
@@ -122,9 +121,7 @@ def run(args: argparse.Namespace) -> None:
     )
     known = envs.backend_package(params.backend).cameras(robot)
     env_kwargs = {"backend": params.backend, "task": params.task, "robot": robot}
-    cameras, size = probe(
-        policy, spec.observation_dims, env_kwargs, known, ACTION_DIM * len(spec.arms)
-    )
+    cameras, size = probe(policy, spec.observation_dims, env_kwargs, known, spec.action_dim)
     job = EvalJob(
         make_env=functools.partial(
             envs.make_env, params.backend, params.task, robot, params.maniskill.lean_step
