@@ -95,5 +95,5 @@ def replay_first_episodes(store, env, count: int) -> list[bool]:
     for k in range(min(count, len(starts))):
         actions = np.asarray(store.data["actions"][starts[k] : store.episode_ends[k]])
         state = np.asarray(store.episodes["initial_state"][k])
-        out.append(replay_actions(env, state, actions, env.spec.objects)[1])
+        out.append(replay_actions(env, state, actions, env.spec.objects, env.spec.arms)[1])
     return out
