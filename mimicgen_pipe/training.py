@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import torch
@@ -24,7 +24,9 @@ from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.outputs import directory_kind
 from mimicgen_pipe.params import Params, TrainParams, training_params
 from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
-from mimicgen_pipe.store import StoreView, open_store
+
+if TYPE_CHECKING:
+    from mimicgen_pipe.store import StoreView
 
 CHECKPOINT_VERSION = 1
 
@@ -120,6 +122,10 @@ def load_training_data(
     Only those arrays and those episodes' rows are read (mimicgen_pipe.store.open_store),
     so memory is what the training holds, whatever else the store has. Raises InputError
     naming the store and what is missing or wrong, before any work."""
+    # imported here so that the trainers import on a machine with torch alone (a GPU
+    # machine training from arrays packed elsewhere, scripts/paper_profile.py)
+    from mimicgen_pipe.store import open_store
+
     view = open_store(path, required=["actions"], task=task, kind=kind)
     missing = [k for k in obs_keys if f"obs/{k}" not in view.data_keys]
     if missing:
@@ -459,14 +465,43 @@ def run_trainings(
     results = map_blocks(run_training, runs, Executor("local", workers), _set_threads, (threads,))
     try:
         for run, (history, states) in zip(runs, results, strict=True):
-            models = []
-            for epoch, state in states:
-                model = BCRNN(run.config.policy)
-                model.load_state_dict(state)
-                models.append((epoch, model))
-            yield history, models
+            yield history, _models(run.config.policy, states)
     finally:
         results.close()
+
+
+def _models(
+    policy: PolicyConfig, states: Sequence[tuple[int, dict[str, torch.Tensor]]]
+) -> list[tuple[int, BCRNN]]:
+    """(epoch, BCRNN of ``policy`` holding that epoch's state dict) for each of ``states``."""
+    models = []
+    for epoch, state in states:
+        model = BCRNN(policy)
+        model.load_state_dict(state)
+        models.append((epoch, model))
+    return models
+
+
+def stacked_trainings(
+    runs: Sequence[TrainingRun],
+) -> Iterator[tuple[list[dict[str, float]], list[tuple[int, BCRNN]]]]:
+    """:func:`run_trainings`' results for runs on a GPU, all trained at once as one stacked
+    network (mimicgen_pipe.stacked_training), with one progress bar for the stack."""
+    from mimicgen_pipe.stacked_training import train_stacked
+
+    states: list[list[tuple[int, dict[str, torch.Tensor]]]] = [[] for _ in runs]
+    bar = tqdm(total=runs[0].config.epochs, desc=f"train {len(runs)} stacked", unit="epoch")
+
+    def progress(epoch: int, rows: list[dict[str, float]]) -> None:
+        bar.update(1)
+        bar.set_postfix(loss=f"{np.mean([r['loss'] for r in rows]):.2f}")
+
+    try:
+        history = train_stacked(runs, lambda i, e, s: states[i].append((e, s)), progress)
+    finally:
+        bar.close()
+    for run, rows, saved in zip(runs, history, states, strict=True):
+        yield rows, _models(run.config.policy, saved)
 
 
 SPLIT_SEED = 0  # the train/validation split is the same for every training seed
@@ -541,7 +576,8 @@ def train_policies(
             label = f"train {training.name} seed {seed}"
             runs.append(TrainingRun(data.train, data.val, training.config, seed, label, len(runs)))
             owners.append(k)
-    results = run_trainings(runs, workers, threads)
+    on_gpu = torch.device(runs[0].config.device).type == "cuda"
+    results = stacked_trainings(runs) if on_gpu else run_trainings(runs, workers, threads)
     curves: list[list[dict[str, float]]] = [[] for _ in trainings]
     finished = 0
     try:

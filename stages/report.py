@@ -27,6 +27,7 @@ from mimicgen_pipe.report.inputs import (
     read_runs,
 )
 from mimicgen_pipe.report.paper import load_paper_results
+from mimicgen_pipe.report.profiles import read_profile_runs
 from mimicgen_pipe.report.scaling import DATASET_SIZE, SCALING, draw_dataset_size
 from mimicgen_pipe.report.summary import SUMMARY, headline_numbers
 from stages import add_selection_arguments, stage_params
@@ -103,7 +104,8 @@ def run(args: argparse.Namespace) -> None:
         scaling = read_metrics_folder(scaling_dir) if scaling_dir.is_dir() else MetricsSet(())
         figures = draw_dataset_size(params, scaling)
         images = dict(figures)
-        blocks = build_suite_report(params, specs, ms, ablations, paper, scaling, figures)
+        profiles = read_profile_runs(metrics_dir)
+        blocks = build_suite_report(params, specs, ms, ablations, paper, scaling, figures, profiles)
         title, runs = "MimicGen task suite", sum(len(r) for r in ablations.values())
     else:
         variants = params.generate.variants

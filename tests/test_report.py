@@ -480,7 +480,7 @@ def test_the_suite_report_has_the_suite_sections_only():
     )  # fmt: skip
     paper = load_paper_results(PAPER)
     blocks = build_suite_report(
-        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}
+        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}, {}
     )
     headings = [b.text for b in blocks if isinstance(b, Heading)]
     assert headings == [
@@ -499,7 +499,7 @@ def test_the_suite_report_has_the_suite_sections_only():
     # the policy data generated again since the policy was trained: its row is marked
     files = (*files[:2], gen("peg_insertion", "D0", 50.0, attempts=2000, run_id="u"), *files[3:])
     blocks = build_suite_report(
-        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}
+        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}, {}
     )
     md = render_markdown(blocks)
     assert rows_of(md, "| peg_insertion (D0) | Square | missing | 62.0 / 54.0 † | missing |")
@@ -709,3 +709,46 @@ def test_the_transit_report_sets_each_cells_linear_and_planned_runs_side_by_side
         "| linear | missing | missing | missing |",
         "| planned | 100 of 141 attempts | 6.0 | 2.0 |",
     ]
+
+
+def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
+    from mimicgen_pipe.report.profiles import profile_blocks, read_profile_runs
+
+    assert read_profile_runs(tmp_path) == {}  # no runs: no folder, no section
+    specs = [envs.task_spec("maniskill", t) for t in ("peg_insertion", "plug_charger")]
+    runs = {
+        "cpu_3seeds": [
+            m("train", "peg_insertion", data="D0", profile="cpu", seeds=3, gradient_steps=60000),
+            m("evaluate", "peg_insertion", "D0", data="D0", seeds=3, checkpoints=4,
+              success_rate_max=60.0,
+              success_rate_max_std=4.0, success_rate_last=50.0, success_rate_last_std=8.2),
+        ],
+        "paper_gpu": [
+            m("train", "peg_insertion", data="D0", profile="paper", seeds=3, epochs=534,
+              device="NVIDIA H200", matmul="fp32", gradient_steps=160200),
+            m("evaluate", "peg_insertion", "D0", data="D0", seeds=3, checkpoints=2,
+              success_rate_max=70.7,
+              success_rate_max_std=3.4, success_rate_last=64.0, success_rate_last_std=7.5),
+            # trained, never evaluated: no row
+            m("train", "plug_charger", data="D0", profile="paper", seeds=3, epochs=534),
+        ],
+    }  # fmt: skip
+    for run, files in runs.items():
+        for f in files:
+            ident = {k: getattr(f, k) for k in ("stage", "task", "backend", "variant", "robot",
+                                                "data", "purpose")}  # fmt: skip
+            path = tmp_path / "profiles" / run / f.path.name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_metrics(path, ident | dict(f.values))
+    read = read_profile_runs(tmp_path)
+    assert list(read) == ["cpu_3seeds", "paper_gpu"]
+    md = render_markdown(profile_blocks(suite_params([]), specs, read, load_paper_results(PAPER)))
+    assert rows_of(
+        md, "| peg_insertion | cpu_3seeds | cpu (cpu) | 100 | 200 | 3 | 4 | 60.0 ± 4.0 |"
+    )
+    assert rows_of(
+        md,
+        "| peg_insertion | paper_gpu | paper (NVIDIA H200, fp32) | 400 | 534 | 3 | 2 | 70.7 ±",
+    )
+    assert "98.0 ± 1.6 (Table P.1, Square D0)" in md
+    assert "plug_charger" not in md

@@ -26,6 +26,7 @@ from mimicgen_pipe.report.blocks import Block
 from mimicgen_pipe.report.curves import curve_blocks
 from mimicgen_pipe.report.inputs import Media, MetricsSet, Run
 from mimicgen_pipe.report.paper import PaperResults
+from mimicgen_pipe.report.profiles import profile_blocks
 from mimicgen_pipe.report.scaling import scaling_blocks
 from mimicgen_pipe.report.settings import method_settings
 from mimicgen_pipe.report.transfer import transfer_blocks, transfer_table
@@ -77,16 +78,19 @@ def build_suite_report(
     paper: PaperResults,
     scaling_ms: MetricsSet,
     figures: Mapping[str, bytes],
+    profile_runs: Mapping[str, MetricsSet],
 ) -> list[Block]:
     """The task suite's report (params suite.*). ``specs``: the suite's tasks; ``ms``: its
     metrics folder; ``ablations``: task -> its saved ablation runs; ``scaling_ms``: the
     dataset-size comparison's metrics folder, ``figures``: its figure where drawn
-    (mimicgen_pipe.report.scaling)."""
+    (mimicgen_pipe.report.scaling); ``profile_runs``: run -> metrics folder of D0 policies
+    under other training profiles (mimicgen_pipe.report.profiles)."""
     blocks = [
         *suite.intro_blocks(specs),
         *suite.suite_dgr_blocks(params, specs, ms, paper),
         *suite.object_transfer_blocks(params, specs, ms, paper),
         *suite.suite_policy_blocks(params, specs, ms, paper),
+        *profile_blocks(params, list(specs), dict(profile_runs), paper),
         *suite.long_task_blocks(params, specs, ms, paper),
         *suite.two_arm_blocks(params, specs, ms),
         *scaling_blocks(params, scaling_ms, figures),
