@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from mimicgen_pipe.policy import BCRNN
-from mimicgen_pipe.training import TrainingRun, validation_windows
+from mimicgen_pipe.training import SequenceData, TrainingRun, validation_windows
 
 LOG_SQRT_2PI = 0.5 * math.log(2 * math.pi)
 WARMUP_STEPS = 3  # eager steps before a CUDA graph is captured (allocator and cuDNN warm-up)
@@ -147,7 +147,9 @@ class _Windows:
     ``batch`` window starts uniform over the run's own steps, windows padded at episode ends
     by repeating the last step (mimicgen_pipe.training.window_index)."""
 
-    def __init__(self, datas, width: int, seq_len: int, device: torch.device) -> None:
+    def __init__(
+        self, datas: Sequence[SequenceData], width: int, seq_len: int, device: torch.device
+    ) -> None:
         counts = [len(d.obs) for d in datas]
         offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
         obs = np.zeros((sum(counts), width), np.float32)
@@ -169,7 +171,9 @@ class _Windows:
         return self.obs[index], self.actions[index]
 
 
-def _validation(runs: Sequence[TrainingRun], width: int, device: torch.device):
+def _validation(
+    runs: Sequence[TrainingRun], width: int, device: torch.device
+) -> tuple[torch.Tensor, ...]:
     """Each run's fixed validation windows (training.validation_windows), padded to the
     most windows by repeating its first: obs (M, V, T, D), actions, and a (M, V) weight that
     averages each run's own windows."""

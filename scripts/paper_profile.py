@@ -68,10 +68,7 @@ def pack(args: argparse.Namespace) -> None:
         d: SequenceData = getattr(training.data, split)
         arrays |= {f"{split}_obs": d.obs, f"{split}_actions": d.actions}
         arrays[f"{split}_ends"] = d.episode_ends
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    encoded = {k: np.frombuffer(_encode(a), np.uint8) for k, a in arrays.items()}
-    header["arrays"] = {k: [list(a.shape), a.dtype.str] for k, a in arrays.items()}
-    np.savez(args.out, header=np.array(json.dumps(header)), **encoded)
+    write_packed(Path(args.out), header, arrays)
     print(
         f"{args.out}: {training.data.train.n_episodes} + {training.data.val.n_episodes} "
         f"episodes, {Path(args.out).stat().st_size / 1e6:.1f} MB"
@@ -91,6 +88,15 @@ def _decode(raw: np.ndarray, shape: list[int], dtype: str) -> np.ndarray:
     planes = np.frombuffer(lzma.decompress(raw.tobytes()), np.uint8).reshape(width, size, n)
     cols = np.ascontiguousarray(planes.transpose(0, 2, 1)).view(dtype).reshape(width, n)
     return np.ascontiguousarray(cols.T).reshape(shape)
+
+
+def write_packed(path: Path, header: dict, arrays: dict[str, np.ndarray]) -> None:
+    """A packed file: ``header`` (JSON: name, policy, schedule, meta) and ``arrays``
+    (train/val obs, actions, episode ends), each array encoded by :func:`_encode`."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    encoded = {k: np.frombuffer(_encode(a), np.uint8) for k, a in arrays.items()}
+    header = header | {"arrays": {k: [list(a.shape), a.dtype.str] for k, a in arrays.items()}}
+    np.savez(path, header=np.array(json.dumps(header)), **encoded)
 
 
 def read_packed(path: str) -> tuple[dict, SequenceData, SequenceData]:
@@ -246,7 +252,7 @@ def unpack(args: argparse.Namespace) -> None:
     print(f"{args.policies}: {written} checkpoints; {args.metrics}")
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
     a = sub.add_parser("pack")
@@ -275,7 +281,7 @@ def main() -> None:
     a.add_argument("--policies", required=True)
     a.add_argument("--metrics", required=True)
     a.add_argument("--plot", required=True)
-    args = p.parse_args()
+    args = p.parse_args(argv)
     {"pack": pack, "train": train, "collect": collect, "unpack": unpack}[args.command](args)
 
 

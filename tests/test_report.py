@@ -480,7 +480,7 @@ def test_the_suite_report_has_the_suite_sections_only():
     )  # fmt: skip
     paper = load_paper_results(PAPER)
     blocks = build_suite_report(
-        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}, {}
+        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}, ([], {})
     )
     headings = [b.text for b in blocks if isinstance(b, Heading)]
     assert headings == [
@@ -499,7 +499,7 @@ def test_the_suite_report_has_the_suite_sections_only():
     # the policy data generated again since the policy was trained: its row is marked
     files = (*files[:2], gen("peg_insertion", "D0", 50.0, attempts=2000, run_id="u"), *files[3:])
     blocks = build_suite_report(
-        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}, {}
+        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}, ([], {})
     )
     md = render_markdown(blocks)
     assert rows_of(md, "| peg_insertion (D0) | Square | missing | 62.0 / 54.0 † | missing |")

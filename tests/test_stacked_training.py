@@ -3,6 +3,8 @@ slice computes what its own BCRNN computes, and trains as train_policy trains it
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -133,12 +135,7 @@ def test_a_deadline_stops_after_the_epoch_it_passes_with_that_epoch_checkpointed
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a GPU")
 def test_cuda_graph_training_matches_eager_training_on_the_gpu():
     runs = [
-        TrainingRun(
-            r.train_data,
-            r.val_data,
-            r.config.__class__(**{**r.config.__dict__, "device": "cuda"}),
-            r.seed,
-        )
+        dataclasses.replace(r, config=dataclasses.replace(r.config, device="cuda"))
         for r in toy_runs(epochs=5)
     ]
     results = []
@@ -148,3 +145,70 @@ def test_cuda_graph_training_matches_eager_training_on_the_gpu():
         results.append(saved[(1, 5)])
     for k, v in results[0].items():
         torch.testing.assert_close(results[1][k], v, rtol=1e-4, atol=1e-5)
+
+
+def test_the_train_stage_gets_a_stacks_results_as_it_gets_side_by_side_runs():
+    from mimicgen_pipe.training import stacked_trainings
+
+    runs = toy_runs(epochs=10)
+    results = list(stacked_trainings(runs))
+    assert len(results) == 2
+    for run, (rows, models) in zip(runs, results, strict=True):
+        assert [r["epoch"] for r in rows][-1] == 10
+        assert [e for e, _ in models] == [10]
+        assert isinstance(models[0][1], BCRNN)
+        assert models[0][1].config == run.config.policy
+
+
+def test_paper_profile_script_packs_trains_returns_and_unpacks_loadable_checkpoints(tmp_path):
+    """scripts/paper_profile.py end to end on the CPU with a tiny network: the packed arrays
+    come back bit for bit, and the returned float16 checkpoints load as the train stage's."""
+    import importlib.util
+    import json
+
+    from mimicgen_pipe.training import load_checkpoint
+
+    spec = importlib.util.spec_from_file_location("paper_profile", "scripts/paper_profile.py")
+    pp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(pp)
+    run = toy_runs(epochs=1)[1]
+    arrays = {}
+    for split, d in (("train", run.train_data), ("val", run.val_data)):
+        arrays |= {f"{split}_obs": d.obs, f"{split}_actions": d.actions}
+        arrays[f"{split}_ends"] = d.episode_ends
+    meta = {"task": "peg_insertion", "backend": "maniskill", "robot": "panda", "data": "D0",
+            "data_run_id": "r", "train_episodes": 9, "val_episodes": 3}  # fmt: skip
+    header = {
+        "name": "peg_insertion_D0",
+        "policy": run.config.policy.as_dict(),
+        "schedule": {"batch_size": 16, "lr": 3e-3, "epochs": 2, "steps_per_epoch": 5,
+                     "checkpoint_every": 1, "lr_schedule": "constant", "seeds": [0, 1]},
+        "meta": meta,
+    }  # fmt: skip
+    packed = tmp_path / "peg_insertion_D0.npz"
+    pp.write_packed(packed, header, arrays)
+    back, train, val = pp.read_packed(str(packed))
+    assert back["meta"] == meta
+    for got, want in ((train, run.train_data), (val, run.val_data)):
+        for key in ("obs", "actions", "episode_ends"):
+            assert np.array_equal(getattr(got, key), getattr(want, key))
+            assert getattr(got, key).dtype == getattr(want, key).dtype
+    trained, out = tmp_path / "trained", tmp_path / "out"
+    pp.main(["train", "--packed", str(packed), "--out", str(trained), "--every", "1",
+             "--device", "cpu"])  # fmt: skip
+    pp.main(["collect", "--trained", str(trained), "--epochs", "1", "--out", str(out)])
+    policies, metrics = tmp_path / "policies", tmp_path / "train.json"
+    plot = tmp_path / "curve.csv"
+    pp.main(["unpack", "--bundles", str(out), "--packed", str(packed), "--policies",
+             str(policies), "--metrics", str(metrics), "--plot", str(plot)])  # fmt: skip
+    for seed in (0, 1):
+        for epoch in (1, 2):  # epoch 1 asked for, epoch 2 the last
+            model, m = load_checkpoint(policies / f"seed{seed}" / f"epoch{epoch:05d}.pt")
+            assert (m["seed"], m["epoch"], m["step"]) == (seed, epoch, 5 * epoch)
+            assert m["weights_returned_as"] == "float16" and m["task"] == "peg_insertion"
+            full = torch.load(trained / "peg_insertion_D0" / f"seed{seed}" / f"epoch{epoch:05d}.pt")
+            for k, v in model.state_dict().items():
+                assert torch.equal(v, full[k].half().float())
+    written = json.loads(metrics.read_text())
+    assert (written["profile"], written["seeds"], written["epochs"]) == ("paper", 2, 2)
+    assert written["gradient_steps"] == 20 and written["matmul"] == "fp32"

@@ -78,19 +78,19 @@ def build_suite_report(
     paper: PaperResults,
     scaling_ms: MetricsSet,
     figures: Mapping[str, bytes],
-    profile_runs: Mapping[str, MetricsSet],
+    profiles: tuple[Sequence[TaskSpec], Mapping[str, MetricsSet]],
 ) -> list[Block]:
     """The task suite's report (params suite.*). ``specs``: the suite's tasks; ``ms``: its
     metrics folder; ``ablations``: task -> its saved ablation runs; ``scaling_ms``: the
     dataset-size comparison's metrics folder, ``figures``: its figure where drawn
-    (mimicgen_pipe.report.scaling); ``profile_runs``: run -> metrics folder of D0 policies
-    under other training profiles (mimicgen_pipe.report.profiles)."""
+    (mimicgen_pipe.report.scaling); ``profiles``: the tasks, and run -> metrics folder, of
+    D0 policies under other training profiles (mimicgen_pipe.report.profiles)."""
     blocks = [
         *suite.intro_blocks(specs),
         *suite.suite_dgr_blocks(params, specs, ms, paper),
         *suite.object_transfer_blocks(params, specs, ms, paper),
         *suite.suite_policy_blocks(params, specs, ms, paper),
-        *profile_blocks(params, list(specs), dict(profile_runs), paper),
+        *profile_blocks(params, *profiles, paper),
         *suite.long_task_blocks(params, specs, ms, paper),
         *suite.two_arm_blocks(params, specs, ms),
         *scaling_blocks(params, scaling_ms, figures),

@@ -7,6 +7,7 @@ precision and epochs reached."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from mimicgen_pipe.params import Params
@@ -28,7 +29,10 @@ def read_profile_runs(metrics_dir: Path) -> dict[str, MetricsSet]:
 
 
 def profile_blocks(
-    params: Params, specs: list[TaskSpec], runs: dict[str, MetricsSet], paper: PaperResults
+    params: Params,
+    specs: Sequence[TaskSpec],
+    runs: Mapping[str, MetricsSet],
+    paper: PaperResults,
 ) -> list[Block]:
     """One row per (task, run) with a D0 evaluation: the profile and where it trained, the
     network width, epochs, seeds, checkpoints rolled out per seed, and success rate max /
@@ -75,7 +79,8 @@ def profile_blocks(
     return [
         Heading(2, "Task suite: D0 policies by training profile (%)"),
         Text(
-            "BC-RNN on each task's 1000 generated D0 demos (the suite's policy data), "
+            "BC-RNN on the 1000 generated D0 demos each task's own policies train on (the "
+            "suite's policy data; the default pipeline's D0 store for its task), "
             "evaluated on D0 with 50 episodes per checkpoint; success rate mean ± std over "
             "training seeds, max over the checkpoints evaluated and the last. Runs in "
             f"`suite/metrics/{PROFILES}/<run>`; a GPU run's weights come back as float16 "
