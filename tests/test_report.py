@@ -744,11 +744,11 @@ def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
     assert list(read) == ["cpu_3seeds", "paper_gpu"]
     md = render_markdown(profile_blocks(suite_params([]), specs, read, load_paper_results(PAPER)))
     assert rows_of(
-        md, "| peg_insertion | cpu_3seeds | cpu (cpu) | 100 | 200 | 3 | 4 | 60.0 ± 4.0 |"
+        md, "| peg_insertion | cpu_3seeds | panda | cpu (cpu) | 100 | 200 | 3 | 4 | 60.0 ± 4.0 |"
     )
     assert rows_of(
         md,
-        "| peg_insertion | paper_gpu | paper (NVIDIA H200, fp32) | 400 | 534 | 3 | 2 | 70.7 ±",
+        "| peg_insertion | paper_gpu | panda | paper (NVIDIA H200, fp32) | 400 | 534 | 3 | 2 |",
     )
     assert "98.0 ± 1.6 (Table P.1, Square D0)" in md
     assert "plug_charger" not in md

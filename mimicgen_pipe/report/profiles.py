@@ -34,9 +34,10 @@ def profile_blocks(
     runs: Mapping[str, MetricsSet],
     paper: PaperResults,
 ) -> list[Block]:
-    """One row per (task, run) with a D0 evaluation: the profile and where it trained, the
-    network width, epochs, seeds, checkpoints rolled out per seed, and success rate max /
-    last over training as mean ± std over seeds, beside the paper's generated-D0 agents."""
+    """One row per (task, run) with a D0 evaluation: the arm its data was generated with and
+    it acts with, the profile and where it trained, the network width, epochs, seeds,
+    checkpoints rolled out per seed, and success rate max / last over training as mean ± std
+    over seeds, beside the paper's generated-D0 agents (Panda's, Table P.1)."""
     backend = params.suite.backend
     rows = []
     for spec in specs:
@@ -61,6 +62,7 @@ def profile_blocks(
                 (
                     spec.name,
                     name,
+                    ev.robot or MISSING,
                     f"{profile or MISSING} ({where})",
                     str(prof.hidden) if prof is not None else MISSING,
                     fmt(epochs, 0),
@@ -73,7 +75,7 @@ def profile_blocks(
             )
     if not rows:
         return []
-    columns = ("task", "run", "profile (trained on)", "hidden", "epochs", "seeds",
+    columns = ("task", "run", "arm", "profile (trained on)", "hidden", "epochs", "seeds",
                "checkpoints per seed", "generated D0 SR max", "SR last",
                "paper (P.1, generated D0)")  # fmt: skip
     return [
