@@ -81,12 +81,13 @@ def profile_blocks(
     return [
         Heading(2, "Task suite: D0 policies by training profile (%)"),
         Text(
-            "BC-RNN on the 1000 generated D0 demos each task's own policies train on (the "
-            "suite's policy data; the default pipeline's D0 store for its task), "
-            "evaluated on D0 with 50 episodes per checkpoint; success rate mean ± std over "
-            "training seeds, max over the checkpoints evaluated and the last. Runs in "
-            f"`suite/metrics/{PROFILES}/<run>`; a GPU run's weights come back as float16 "
-            "(scripts/paper_profile.py)."
+            "BC-RNN on 1000 generated D0 demos (the suite's policy data; the default "
+            "pipeline's D0 store for its task; for another arm, demos generated for it from "
+            "the same source demos, the policy acting with it), evaluated on D0 with 50 "
+            "episodes per checkpoint; success rate mean ± std over training seeds, max over "
+            "the checkpoints evaluated and the last. The paper's column is its Panda agents. "
+            f"Runs in `suite/metrics/{PROFILES}/<run>`; a GPU run's weights come back as "
+            "float16 (scripts/paper_profile.py)."
         ),
         Table(columns, tuple(rows)),
     ]
