@@ -5,21 +5,23 @@ then checkpointed and evaluated here as the train stage's own policies.
     # here: a task's training data (the train stage's demos and split) as one file
     python scripts/paper_profile.py pack --task peg_insertion \\
         --store data/generated/peg_insertion_D0_train.zarr --out data/gpu/peg_insertion_D0.npz
-    # on the GPU machine, with a copy of this repository: every task and seed at once, as one
-    # stacked network (mimicgen_pipe.stacked_training); checkpoints every --every epochs
-    python scripts/paper_profile.py train --packed data/gpu/*.npz --out /tmp/paper
+    # on the GPU machine, with a copy of this repository (PYTHONPATH=. where the package is
+    # not installed): every task and seed as one stacked network (mimicgen_pipe.
+    # stacked_training), checkpoints every --every epochs, --deadline seconds at most
+    python scripts/paper_profile.py train --packed data/gpu/*.npz --out /tmp/paper --deadline 450
     # there too: checkpoints as float16 bundles of at most 3 (returned from a machine that
-    # sends back little); --part k/n sends the k-th of n shares
+    # sends back little), the epochs asked for and each run's last; --part k/n: the k-th share
     python scripts/paper_profile.py collect --trained /tmp/paper --epochs 1000 2000 --out OUT
-    # here: the train stage's checkpoints, curve and metrics, then the evaluate stage
+    # here: the train stage's checkpoints, curve and metrics, then the evaluate stage (with
+    # params whose evaluate.every_epochs picks the returned epochs)
     python scripts/paper_profile.py unpack --bundles OUT --packed data/gpu/peg_insertion_D0.npz \\
         --policies data/policies/peg_insertion_D0_paper \\
-        --metrics suite/metrics/paper/train_peg_insertion_D0.json \\
-        --plot suite/plots/paper/train_peg_insertion_D0.csv
-    mimicgen-pipe evaluate --task peg_insertion --data D0 --variant D0 \\
+        --metrics suite/metrics/profiles/paper_gpu/train_peg_insertion_D0.json \\
+        --plot suite/plots/profiles/paper_gpu/train_peg_insertion_D0.csv
+    mimicgen-pipe evaluate --params <file> --task peg_insertion --data D0 --variant D0 \\
         --policies data/policies/peg_insertion_D0_paper \\
-        --metrics suite/metrics/paper/evaluate_peg_insertion_D0_on_D0.json \\
-        --plot suite/plots/paper/evaluate_peg_insertion_D0_on_D0.csv
+        --metrics suite/metrics/profiles/paper_gpu/evaluate_peg_insertion_D0_on_D0.json \\
+        --plot suite/plots/profiles/paper_gpu/evaluate_peg_insertion_D0_on_D0.csv
 """
 
 from __future__ import annotations
