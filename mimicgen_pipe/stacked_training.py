@@ -301,7 +301,7 @@ def train_stacked(
 
 
 def _schedule(run: TrainingRun) -> tuple:
-    """What stacked runs must share: the config but for the observation layout."""
+    """What stacked runs must share beside the architecture (StackedBCRNN checks that)."""
     c = run.config
     return (
         c.batch_size,
@@ -311,7 +311,6 @@ def _schedule(run: TrainingRun) -> tuple:
         c.checkpoint_every,
         c.lr_schedule,
         c.device,
-        c.policy.seq_len,
     )
 
 

@@ -195,6 +195,7 @@ def collect(args: argparse.Namespace) -> None:
 def unpack(args: argparse.Namespace) -> None:
     from mimicgen_pipe.metrics import metrics_identity, write_metrics
     from mimicgen_pipe.training import checkpoint_path, save_checkpoint
+    from stages.train import write_curve
 
     header, tr, va = read_packed(args.packed)
     config = PolicyConfig.from_dict(header["policy"])
@@ -227,10 +228,7 @@ def unpack(args: argparse.Namespace) -> None:
         if name == header["name"]:
             rows += [{"seed": int(seed_dir[4:]), **r} for r in csv.DictReader(text.splitlines())]
     Path(args.plot).parent.mkdir(parents=True, exist_ok=True)
-    with Path(args.plot).open("w", newline="") as f:
-        w = csv.DictWriter(f, ["seed", "epoch", "step", "loss", "val_loss", "seconds"])
-        w.writeheader()
-        w.writerows(rows)
+    write_curve(Path(args.plot), rows)  # as the train stage writes its curve
     last_epoch = max(int(r["epoch"]) for r in rows)
     last = [r for r in rows if int(r["epoch"]) == last_epoch]
     task, data = meta["task"], meta["data"]

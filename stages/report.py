@@ -105,8 +105,9 @@ def run(args: argparse.Namespace) -> None:
         figures = draw_dataset_size(params, scaling)
         images = dict(figures)
         # the main task's policies beside the suite's, when trained under other profiles
-        main = [envs.task_spec(u.backend, params.task)] if params.backend == u.backend else []
-        profiles = ([*main, *specs], read_profile_runs(metrics_dir))
+        main = params.task not in u.tasks and params.backend == u.backend
+        own = [envs.task_spec(u.backend, params.task)] if main else []
+        profiles = ([*own, *specs], read_profile_runs(metrics_dir))
         blocks = build_suite_report(params, specs, ms, ablations, paper, scaling, figures, profiles)
         title, runs = "MimicGen task suite", sum(len(r) for r in ablations.values())
     else:
