@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from mimicgen_pipe.policy import BCRNN, PolicyConfig
-from mimicgen_pipe.training import SequenceData, TrainConfig, TrainingRun
+from mimicgen_pipe.training import POLICY_DIR, SequenceData, TrainConfig, TrainingRun
 
 BUNDLE = 3  # float16 checkpoints per returned file (4 MB each at hidden 400)
 
@@ -193,6 +193,19 @@ def collect(args: argparse.Namespace) -> None:
 
 
 def unpack(args: argparse.Namespace) -> None:
+    from mimicgen_pipe.outputs import claim, claims
+
+    with claims():  # as a stage: refuses to write over anything but its own kinds of output
+        claim(
+            (Path(args.policies), POLICY_DIR),
+            Path(args.metrics),
+            Path(args.plot),
+            inputs=[args.bundles, args.packed],
+        )
+        _unpack(args)
+
+
+def _unpack(args: argparse.Namespace) -> None:
     from mimicgen_pipe.metrics import metrics_identity, write_metrics
     from mimicgen_pipe.training import checkpoint_path, save_checkpoint
     from stages.train import write_curve

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
 from mimicgen_pipe.stacked_training import StackedBCRNN, stacked_nll, train_stacked
 from mimicgen_pipe.training import (
@@ -212,3 +213,12 @@ def test_paper_profile_script_packs_trains_returns_and_unpacks_loadable_checkpoi
     written = json.loads(metrics.read_text())
     assert (written["profile"], written["seeds"], written["epochs"]) == ("paper", 2, 2)
     assert written["gradient_steps"] == 20 and written["matmul"] == "fp32"
+    # a directory of anything but checkpoints is never written into
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    with pytest.raises(InputError, match="mine"):
+        pp.main(["unpack", "--bundles", str(out), "--packed", str(packed), "--policies",
+                 str(mine), "--metrics", str(tmp_path / "m2.json"), "--plot",
+                 str(tmp_path / "c2.csv")])  # fmt: skip
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
