@@ -6,7 +6,9 @@ checkpoint is self-contained). The mixture's means are squashed by tanh into the
 range [-1, 1]; its scales are softplus + ``min_std``. At rollout time the hidden state is
 reset every ``seq_len`` steps, so the policy always sees a context like the training
 windows, and actions are drawn from the mixture with a tiny fixed scale (robomimic's
-"low noise" evaluation): the mode is random, the spread is not.
+"low noise" evaluation): the component is drawn, the spread is not. ``component="most_likely"``
+takes the component of the largest weight instead (a rollout-protocol factor; not the
+default, as robomimic draws it).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from torch import nn
 from torch.distributions import Categorical, Independent, MixtureSameFamily, Normal
 
 EVAL_STD = 1e-4
+COMPONENTS = ("drawn", "most_likely")  # how RolloutPolicy picks the mixture component
 
 
 @dataclass(frozen=True)
@@ -95,9 +98,13 @@ def nll_loss(model: BCRNN, obs: torch.Tensor, actions: torch.Tensor) -> torch.Te
 
 class RolloutPolicy:
     """A trained BC-RNN acting one step at a time: ``reset(seed)`` at each episode start,
-    then ``act(obs)`` with the observation dict of mimicgen_pipe.observations."""
+    then ``act(obs)`` with the observation dict of mimicgen_pipe.observations.
+    component: one of ``COMPONENTS``, the mixture component acted on at each step."""
 
-    def __init__(self, model: BCRNN) -> None:
+    def __init__(self, model: BCRNN, component: str = "drawn") -> None:
+        if component not in COMPONENTS:
+            raise ValueError(f"component: expected one of {COMPONENTS}, got {component!r}")
+        self.component = component
         self.model = model.eval()
         self.keys = model.config.obs_keys
         self._state: tuple[torch.Tensor, torch.Tensor] | None = None
@@ -115,7 +122,10 @@ class RolloutPolicy:
         self._t += 1
         x = torch.from_numpy(np.concatenate([obs[k] for k in self.keys]).astype(np.float32))
         means, _, logits, self._state = self.model(x.view(1, 1, -1), self._state)
-        mode = torch.multinomial(torch.softmax(logits[0, 0], -1), 1, generator=self._gen)
-        mean = means[0, 0, mode[0]]
+        if self.component == "drawn":
+            k = int(torch.multinomial(torch.softmax(logits[0, 0], -1), 1, generator=self._gen))
+        else:
+            k = int(torch.argmax(logits[0, 0]))
+        mean = means[0, 0, k]
         noise = torch.randn(mean.shape, generator=self._gen) * EVAL_STD
         return (mean + noise).numpy().astype(np.float32)

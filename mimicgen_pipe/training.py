@@ -628,6 +628,7 @@ def default_device() -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-def load_rollout_policy(path: str) -> RolloutPolicy:
-    """A checkpoint as a policy for mimicgen_pipe.evaluation (picklable by name)."""
-    return RolloutPolicy(load_checkpoint(path)[0])
+def load_rollout_policy(path: str, component: str = "drawn") -> RolloutPolicy:
+    """A checkpoint as a policy for mimicgen_pipe.evaluation (picklable by name; component:
+    mimicgen_pipe.policy.COMPONENTS)."""
+    return RolloutPolicy(load_checkpoint(path)[0], component)

@@ -1,14 +1,18 @@
-"""How far a policy's rollouts get, subtask by subtask: one checkpoint rolled out as the
-evaluate stage rolls it out (its scenes, blocks and workers, so its success rate is the
+"""How far a policy's rollouts get, subtask by subtask: checkpoints rolled out as the
+evaluate stage rolls them out (its scenes, blocks and workers, so a success rate is the
 stage's), and for each subtask the episodes that ended it (its term signal's first rise
 after the subtask before it ended, as parse finds subtask ends in a demo).
 
     python scripts/rollouts_by_subtask.py --task drawer_cleanup --variant D0 \\
-        --policy data/policies/drawer_cleanup_D0/seed0/epoch00200.pt [--episodes 50] \\
+        --policy data/policies/drawer_cleanup_D0/seed0/epoch00200.pt [more .pt] \\
+        [--episodes 50] [--component most_likely] [--horizon 600] \\
         [--backend maniskill] [--out rollouts.json]
 
-Prints one line per subtask (episodes that ended it, and of those that ended the one before)
-and the success rate; ``--out`` writes the same and the step each episode ended each subtask.
+Prints, per checkpoint, one line per subtask (episodes that ended it, and of those that ended
+the one before) and the success rate; ``--out`` writes the same and the step each episode
+ended each subtask. ``--component`` and ``--horizon`` change the rollout protocol (the
+mixture component acted on, mimicgen_pipe.policy.COMPONENTS; the step limit, default the
+task's) to measure what it does to the same checkpoints on the same scenes.
 """
 
 from __future__ import annotations
@@ -19,20 +23,23 @@ import json
 from pathlib import Path
 
 import envs
-from mimicgen_pipe.evaluation import EvalJob, evaluate_policies, evaluation_seed
+from mimicgen_pipe.evaluation import EvalJob, Rollout, evaluate_policies, evaluation_seed
 from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.params import load_params
+from mimicgen_pipe.policy import COMPONENTS
 from mimicgen_pipe.training import load_rollout_policy
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--policy", required=True, help="a checkpoint of the train stage (.pt)")
+    p.add_argument("--policy", required=True, nargs="+", help="checkpoints of the train stage")
     p.add_argument("--task", required=True)
     p.add_argument("--variant", default="D0")
     p.add_argument("--backend", default="maniskill")
     p.add_argument("--episodes", type=int, default=None, help="default: evaluate.episodes")
     p.add_argument("--params", default="params.yaml", help="for evaluate.seed and episodes")
+    p.add_argument("--component", default="drawn", choices=COMPONENTS)
+    p.add_argument("--horizon", type=int, default=None, help="default: the task's horizon")
     p.add_argument("--out", type=Path, help="a JSON file for the counts and every episode")
     args = p.parse_args()
     if args.out is not None and args.out.exists():  # before any work; nothing is replaced
@@ -46,44 +53,50 @@ def main() -> None:
         make_env=functools.partial(
             envs.make_env, args.backend, args.task, "panda", params.maniskill.lean_step
         ),
-        load_policy=load_rollout_policy,
+        load_policy=functools.partial(load_rollout_policy, component=args.component),
         variant=args.variant,
-        horizon=spec.horizon,
+        horizon=args.horizon or spec.horizon,
         objects=spec.objects,
         term_signals=tuple(str(s.term_signal) for s in spec.subtasks[:-1]),
     )
     seeds = [evaluation_seed(params.evaluate.seed, args.variant, i) for i in range(episodes)]
     executor = stage_executor(params, "evaluate")
     label = f"rollouts {args.task} {args.variant}"
-    rollouts = evaluate_policies(job, [args.policy], seeds, executor, label)[0][args.policy]
+    rollouts = evaluate_policies(job, args.policy, seeds, executor, label)[0]
+    out = [_by_subtask(path, rollouts[path], names) for path in args.policy]
+    if args.out:
+        protocol = {"component": args.component, "horizon": job.horizon}
+        common = {"task": args.task, "variant": args.variant, "episodes": episodes} | protocol
+        args.out.write_text(json.dumps(common | {"policies": out}, indent=2) + "\n")
+
+
+def _by_subtask(path: str, rollouts: list[Rollout], names: list[str]) -> dict:
+    """Print and return one checkpoint's episodes that ended each subtask."""
+    episodes = len(rollouts)
     # the last subtask is reached when the task succeeds
     reached = [[*(e >= 0 for e in r.subtask_ends), r.success] for r in rollouts]
     counts = dict(zip(names, (sum(r[k] for r in reached) for k in range(len(names))), strict=True))
-    print(f"\n{args.policy}: {episodes} episodes of {args.task} {args.variant}")
+    print(f"\n{path}: {episodes} episodes")
     before = episodes
     for k, name in enumerate(names):
         both = sum(r[k] and (k == 0 or r[k - 1]) for r in reached)
         print(f"  {name:24s} reached {counts[name]:3d} ({both} of the {before} before)")
         before = counts[name]
     print(f"  success rate {100 * counts[names[-1]] / episodes:.1f} %")
-    if args.out:
-        out = {
-            "policy": args.policy,
-            "task": args.task,
-            "variant": args.variant,
-            "episodes": episodes,
-            "reached": counts,
-            "rollouts": [
-                {
-                    "seed": r.seed,
-                    "success": r.success,
-                    "steps": r.steps,
-                    "subtask_ends": list(r.subtask_ends),
-                }
-                for r in rollouts
-            ],
-        }
-        args.out.write_text(json.dumps(out, indent=2) + "\n")
+    return {
+        "policy": path,
+        "reached": counts,
+        "success_rate": 100 * counts[names[-1]] / episodes,
+        "rollouts": [
+            {
+                "seed": r.seed,
+                "success": r.success,
+                "steps": r.steps,
+                "subtask_ends": list(r.subtask_ends),
+            }
+            for r in rollouts
+        ],
+    }
 
 
 if __name__ == "__main__":

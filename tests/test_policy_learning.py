@@ -97,6 +97,25 @@ def test_bc_rnn_learns_a_mapping_and_is_deterministic():
     assert not torch.equal(next(iter(model.parameters())), next(iter(other.parameters())))
 
 
+def test_rollout_policy_acts_on_a_drawn_or_the_most_likely_component():
+    torch.manual_seed(0)
+    model = BCRNN(PolicyConfig(("x",), (4,), 3, hidden=8, layers=1, seq_len=50, modes=5))
+    obs = np.random.default_rng(0).normal(size=(40, 4)).astype(np.float32)
+    with torch.no_grad():
+        means, _, logits, _ = model(torch.from_numpy(obs)[None])
+    best = means[0, torch.arange(40), logits[0].argmax(-1)].numpy()
+    acted = {}
+    for component in ("drawn", "most_likely"):
+        policy = RolloutPolicy(model, component)
+        policy.reset(0)
+        acted[component] = np.stack([policy.act({"x": o}) for o in obs])
+    np.testing.assert_allclose(acted["most_likely"], best, atol=1e-3)
+    # a drawn component is another one at some steps (5 components of similar weight)
+    assert np.abs(acted["drawn"] - best).max(axis=1).max() > 1e-2
+    with pytest.raises(ValueError, match="component: expected one of"):
+        RolloutPolicy(model, "mode")
+
+
 def test_rollout_policy_restarts_its_context_every_seq_len_steps():
     torch.manual_seed(0)
     model = BCRNN(PolicyConfig(("x",), (4,), 3, hidden=8, layers=1, seq_len=3, modes=1))

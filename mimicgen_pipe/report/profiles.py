@@ -1,13 +1,15 @@
-"""The suite's policies by training profile: D0 policies trained with several seeds under
-other budgets than the suite's own one-seed `cpu` runs (the `cpu` profile with 3 seeds, the
-paper's profile trained on a GPU by scripts/paper_profile.py), beside Table P.1. Each run's
-metrics live in their own folder, PROFILES/<run> under the suite's metrics, as train and
-evaluate metrics of data D0; a train metric of a GPU run also says its device, matmul
-precision and epochs reached."""
+"""The suite's policies by training profile: policies on generated D0 or D1 data trained
+with several seeds under other budgets than the suite's own one-seed `cpu` runs (the `cpu`
+profile with 3 seeds, the paper's profile trained on a GPU by scripts/paper_profile.py, data
+generated for another arm), beside Tables P.1 and E.3. Each run's metrics live in their own
+folder, PROFILES/<run> under the suite's metrics, as train and evaluate metrics of data D0
+or D1 (evaluated in the same variant); a train metric of a GPU run also says its device,
+matmul precision and epochs reached."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from itertools import product
 from pathlib import Path
 
 from mimicgen_pipe.params import Params
@@ -18,6 +20,7 @@ from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.taskspec import TaskSpec
 
 PROFILES = "profiles"  # the runs' metrics folders, in the suite's metrics folder
+VARIANTS = ("D0", "D1")  # the variants with policies (paper P.1)
 
 
 def read_profile_runs(metrics_dir: Path) -> dict[str, MetricsSet]:
@@ -34,60 +37,79 @@ def profile_blocks(
     runs: Mapping[str, MetricsSet],
     paper: PaperResults,
 ) -> list[Block]:
-    """One row per (task, run) with a D0 evaluation: the arm its data was generated with and
-    it acts with, the profile and where it trained, the network width, epochs, seeds,
-    checkpoints rolled out per seed, and success rate max / last over training as mean ± std
-    over seeds, beside the paper's generated-D0 agents (Panda's, Table P.1)."""
+    """One row per (task, variant, run) with an evaluation, in that variant, of a policy on
+    generated data of that variant: the arm its data was generated with and it acts with,
+    the profile and where it trained, the network width, epochs, seeds, checkpoints rolled
+    out per seed, and success rate max / last over training as mean ± std over seeds, beside
+    the paper's agents on generated data of the variant (Panda's, Table P.1)."""
     backend = params.suite.backend
     rows = []
-    for spec in specs:
-        for name, ms in runs.items():
-            ev = ms.one(stage="evaluate", task=spec.name, backend=backend, data="D0")
-            if ev is None:
-                continue
-            train = ms.one(stage="train", task=spec.name, backend=backend, data="D0")
-            t = train.values if train is not None else {}
-            profile = t.get("profile")
-            prof = getattr(params.train, profile) if profile in ("cpu", "paper") else None
-            seeds = t.get("seeds") or ev.values.get("seeds")
-            epochs = t.get("epochs")
-            if epochs is None and prof is not None and seeds:
-                epochs = t["gradient_steps"] // (seeds * prof.steps_per_epoch)
-            where = t.get("device", "cpu")
-            if "matmul" in t:
-                where += f", {t['matmul']}"
-            ref = paper.find(table="P.1", task=spec.paper_task, data="D0", variant="D0")
-            v = ev.values
-            rows.append(
-                (
-                    spec.name,
-                    name,
-                    ev.robot or MISSING,
-                    f"{profile or MISSING} ({where})",
-                    str(prof.hidden) if prof is not None else MISSING,
-                    fmt(epochs, 0),
-                    fmt(seeds, 0),
-                    fmt(v.get("checkpoints"), 0),
-                    fmt_pm(v.get("success_rate_max"), v.get("success_rate_max_std")),
-                    fmt_pm(v.get("success_rate_last"), v.get("success_rate_last_std")),
-                    "; ".join(e.cite() for e in ref) or "–",
-                )
+    for spec, variant, (name, ms) in product(specs, VARIANTS, runs.items()):
+        where = {"task": spec.name, "backend": backend, "data": variant}
+        ev = ms.one(stage="evaluate", variant=variant, **where)
+        if ev is None:
+            continue
+        train = ms.one(stage="train", **where)
+        t = train.values if train is not None else {}
+        profile = t.get("profile")
+        prof = getattr(params.train, profile) if profile in ("cpu", "paper") else None
+        seeds = t.get("seeds") or ev.values.get("seeds")
+        epochs = t.get("epochs")
+        if epochs is None and prof is not None and seeds:
+            epochs = t["gradient_steps"] // (seeds * prof.steps_per_epoch)
+        device = t.get("device", "cpu") + (f", {t['matmul']}" if "matmul" in t else "")
+        ref = paper.find(table="P.1", task=spec.paper_task, data=variant, variant=variant)
+        v = ev.values
+        rows.append(
+            (
+                spec.name,
+                variant,
+                name,
+                ev.robot or MISSING,
+                f"{profile or MISSING} ({device})",
+                str(prof.hidden) if prof is not None else MISSING,
+                fmt(epochs, 0),
+                fmt(seeds, 0),
+                fmt(v.get("checkpoints"), 0),
+                fmt_pm(v.get("success_rate_max"), v.get("success_rate_max_std")),
+                fmt_pm(v.get("success_rate_last"), v.get("success_rate_last_std")),
+                "; ".join(e.cite() for e in ref) or "–",
             )
+        )
     if not rows:
         return []
-    columns = ("task", "run", "arm", "profile (trained on)", "hidden", "epochs", "seeds",
-               "checkpoints per seed", "generated D0 SR max", "SR last",
-               "paper (P.1, generated D0)")  # fmt: skip
+    columns = ("task", "variant", "run", "arm", "profile (trained on)", "hidden", "epochs",
+               "seeds", "checkpoints per seed", "generated SR max", "SR last",
+               "paper (P.1, generated data)")  # fmt: skip
     return [
-        Heading(2, "Task suite: D0 policies by training profile (%)"),
+        Heading(2, "Task suite: policies by training profile (%)"),
         Text(
-            "BC-RNN on 1000 generated D0 demos (the suite's policy data; the default "
-            "pipeline's D0 store for its task; for another arm, demos generated for it from "
-            "the same source demos, the policy acting with it), evaluated on D0 with 50 "
-            "episodes per checkpoint; success rate mean ± std over training seeds, max over "
-            "the checkpoints evaluated and the last. The paper's column is its Panda agents. "
-            f"Runs in `suite/metrics/{PROFILES}/<run>`; a GPU run's weights come back as "
-            "float16 (scripts/paper_profile.py)."
+            "BC-RNN on 1000 generated demos of a variant (the suite's policy data; the "
+            "default pipeline's store for its task; for another arm, demos generated for it "
+            "from the same source demos, the policy acting with it), evaluated in that "
+            "variant with 50 episodes per checkpoint; success rate mean ± std over training "
+            "seeds, max over the checkpoints evaluated and the last. The paper's column is "
+            f"its Panda agents{_other_arms(paper)}. Runs in `suite/metrics/{PROFILES}/<run>`; "
+            "a GPU run's weights come back as float16 (scripts/paper_profile.py)."
         ),
         Table(columns, tuple(rows)),
     ]
+
+
+def _other_arms(paper: PaperResults) -> str:
+    """The paper's low-dim agents on data generated for other arms (Table E.3), as a clause
+    of the table's text."""
+    cells = []
+    for variant in VARIANTS:
+        for task in sorted({e.task for e in paper.find(table="E.3", variant=variant)}):
+            found = paper.find(table="E.3", task=task, variant=variant)
+            panda = [e.value for e in found if e.condition == "Panda"]
+            other = [e.value for e in found if e.condition != "Panda"]
+            if panda and other:
+                cells.append(
+                    f"{task} {variant} Panda {panda[0]:.1f}, "
+                    f"other arms {min(other):.1f}–{max(other):.1f}"
+                )
+    if not cells:
+        return ""
+    return " (on data generated for other arms, Table E.3: " + "; ".join(cells) + ")"
