@@ -6,7 +6,7 @@ after the subtask before it ended, as parse finds subtask ends in a demo).
     python scripts/rollouts_by_subtask.py --task drawer_cleanup --variant D0 \\
         --policy data/policies/drawer_cleanup_D0/seed0/epoch00200.pt [more .pt] \\
         [--episodes 50] [--component most_likely] [--horizon 600] \\
-        [--backend maniskill] [--out rollouts.json]
+        [--backend maniskill] [--robot xarm6] [--out rollouts.json]
 
 Prints, per checkpoint, one line per subtask (episodes that ended it, and of those that ended
 the one before) and the success rate; ``--out`` writes the same and the step each episode
@@ -36,6 +36,7 @@ def main() -> None:
     p.add_argument("--task", required=True)
     p.add_argument("--variant", default="D0")
     p.add_argument("--backend", default="maniskill")
+    p.add_argument("--robot", default="panda", help="the arm the policy acts with")
     p.add_argument("--episodes", type=int, default=None, help="default: evaluate.episodes")
     p.add_argument("--params", default="params.yaml", help="for evaluate.seed and episodes")
     p.add_argument("--component", default="drawn", choices=COMPONENTS)
@@ -48,10 +49,11 @@ def main() -> None:
     params = load_params(args.params)
     episodes = args.episodes or params.evaluate.episodes
     spec = envs.task_spec(args.backend, args.task)
+    envs.check_robot(args.backend, args.robot)
     names = [s.name for s in spec.subtasks]
     job = EvalJob(
         make_env=functools.partial(
-            envs.make_env, args.backend, args.task, "panda", params.maniskill.lean_step
+            envs.make_env, args.backend, args.task, args.robot, params.maniskill.lean_step
         ),
         load_policy=functools.partial(load_rollout_policy, component=args.component),
         variant=args.variant,

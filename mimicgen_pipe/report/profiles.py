@@ -40,8 +40,9 @@ def profile_blocks(
     """One row per (task, variant, run) with an evaluation, in that variant, of a policy on
     generated data of that variant: the arm its data was generated with and it acts with,
     the profile and where it trained, the network width, epochs, seeds, checkpoints rolled
-    out per seed, and success rate max / last over training as mean ± std over seeds, beside
-    the paper's agents on generated data of the variant (Panda's, Table P.1)."""
+    out per seed and their rollout horizon [steps], and success rate max / last over training
+    as mean ± std over seeds, beside the paper's agents on generated data of the variant
+    (Panda's, Table P.1)."""
     backend = params.suite.backend
     rows = []
     for spec, variant, (name, ms) in product(specs, VARIANTS, runs.items()):
@@ -71,6 +72,7 @@ def profile_blocks(
                 fmt(epochs, 0),
                 fmt(seeds, 0),
                 fmt(v.get("checkpoints"), 0),
+                fmt(v.get("horizon"), 0),
                 fmt_pm(v.get("success_rate_max"), v.get("success_rate_max_std")),
                 fmt_pm(v.get("success_rate_last"), v.get("success_rate_last_std")),
                 "; ".join(e.cite() for e in ref) or "–",
@@ -79,7 +81,7 @@ def profile_blocks(
     if not rows:
         return []
     columns = ("task", "variant", "run", "arm", "profile (trained on)", "hidden", "epochs",
-               "seeds", "checkpoints per seed", "generated SR max", "SR last",
+               "seeds", "checkpoints per seed", "horizon", "generated SR max", "SR last",
                "paper (P.1, generated data)")  # fmt: skip
     return [
         Heading(2, "Task suite: policies by training profile (%)"),
