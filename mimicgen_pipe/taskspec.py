@@ -11,6 +11,8 @@ from typing import Literal
 
 from mimicgen_pipe.observations import observation_dims, observation_keys
 
+ARM_ACTION_DIM = 7  # one arm's action: delta position (3), delta rotation (3), gripper (1)
+
 ARM = "arm"  # the arm of a one-arm task's subtasks
 
 
@@ -164,8 +166,8 @@ class TaskSpec:
 
     @property
     def action_dim(self) -> int:
-        """Entries of one action: 7 per arm (delta pose and gripper, in arm order)."""
-        return 7 * len(self.arms)
+        """Entries of one action: ARM_ACTION_DIM per arm, in arm order."""
+        return ARM_ACTION_DIM * len(self.arms)
 
     @property
     def several_arms(self) -> tuple[str, ...]:

@@ -46,12 +46,12 @@ import numpy as np
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.external._serve import LENGTH, PROTOCOL, decode, encode
 from mimicgen_pipe.registry import choices, load
+from mimicgen_pipe.taskspec import ARM_ACTION_DIM
 
 SERVER = Path(__file__).resolve().parent / "_serve.py"
 REPO = Path(__file__).resolve().parents[2]
 # the check virtualenv that scripts/setup.sh makes, where robomimic and lerobot are installed
 DEFAULT_PYTHON = REPO / ".venv-learners" / "bin" / "python"
-ACTION_DIM = 7  # our envs' delta-pose action (mimicgen_pipe.generation.Env.step)
 HELLO_SECONDS = 600.0  # importing a framework and loading a policy, on a busy machine
 ACT_SECONDS = 120.0
 CLOSE_SECONDS = 10.0
@@ -304,7 +304,7 @@ def check_hello(
     provided: Mapping[str, tuple[tuple[int, ...], str]],
     env_kwargs: Mapping[str, str],
     cameras: Sequence[str],
-    action_dim: int = ACTION_DIM,
+    action_dim: int = ARM_ACTION_DIM,
 ) -> None:
     """InputError, before any rollout, for a policy our env cannot run: one naming every
     input it reads that ``provided`` lacks (images among them: the rollouts picture the
@@ -341,8 +341,8 @@ def check_hello(
             f"{spec.name}: acts with {hello['action_dim']} numbers per step; our env takes "
             f"{action_dim} (dx, dy, dz, drx, dry, drz, gripper"
             + (
-                f", for each of {action_dim // ACTION_DIM} arms)"
-                if action_dim > ACTION_DIM
+                f", for each of {action_dim // ARM_ACTION_DIM} arms)"
+                if action_dim > ARM_ACTION_DIM
                 else ")"
             )
         )
@@ -360,7 +360,7 @@ def probe(
     obs_dims: Mapping[str, int],
     env_kwargs: Mapping[str, str],
     known: Sequence[str],
-    action_dim: int = ACTION_DIM,
+    action_dim: int = ARM_ACTION_DIM,
 ) -> tuple[tuple[str, ...], tuple[int, int] | None]:
     """Start the policy's server and check, before any rollout, that our env gives it every
     input (:func:`check_hello`; ``obs_dims``: the task's observation widths, ``known``: the
