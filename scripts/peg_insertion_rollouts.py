@@ -1,0 +1,112 @@
+"""Where a peg_insertion policy's rollouts end: the peg head in the hole's frame, as
+ManiSkill's success test measures it, at the end of each episode.
+
+    python scripts/peg_insertion_rollouts.py \\
+        --policy data/policies/peg_insertion_D0_cpu3/seed1/epoch00100.pt [--episodes 20] \\
+        [--variant D0] [--component most_likely] [--out rollouts.json]
+
+Rolls the checkpoint out on the evaluate stage's first scenes of the variant (one process),
+up to the task's horizon, and prints per episode: success, the step it ended, whether the
+peg is still grasped, the head's depth x along the hole's axis [m] and its distance from the
+axis [m] at the end, the deepest x reached, and how far x moved over the last 50 steps [m].
+The box's face is at x = -(the peg's half-length), -0.085 m; success needs x >= -0.015 (7 cm
+in). A summary sorts the failures: stopped grasped at the hole's mouth (within 2 cm in front
+of the face and 1 cm of the axis), held at the face further off the axis, in the hole short
+of success, other.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+import envs
+from mimicgen_pipe.evaluation import evaluation_seed, policy_observation
+from mimicgen_pipe.generation import Env
+from mimicgen_pipe.params import load_params
+from mimicgen_pipe.policy import COMPONENTS
+from mimicgen_pipe.training import load_rollout_policy
+
+TASK = "peg_insertion"
+HOLE_RADIUS = 0.023  # [m] the task file's hole (the peg's 2.0 cm radius + 3 mm of clearance)
+
+
+def head_in_hole(env: Env) -> tuple[float, float]:
+    """The peg head's depth along the hole's axis and its distance from the axis [m]."""
+    from envs.maniskill import lean
+
+    u = env.unwrapped
+    hole = lean.offset_pose(u.box, u.box_hole_offsets)
+    head = lean.offset_pose(u.peg, u.peg_head_offsets)
+    x, y, z = lean.pose_multiply(lean.pose_inverse(*hole), head)[0]
+    return float(x), float(np.hypot(y, z))
+
+
+def failure_kind(row: dict, face: float) -> str:
+    """Where a failed episode ended (face: the box's face along the hole's axis [m])."""
+    if not row["grasped"]:
+        return "dropped the peg"
+    if row["depth_m"] > face + 0.002 and row["off_axis_m"] < HOLE_RADIUS:
+        return "in the hole, short of success"
+    if face - 0.02 < row["depth_m"] <= face + 0.002:
+        aligned = row["off_axis_m"] < 0.01
+        return "stopped at the mouth" if aligned else "held at the face, off the axis"
+    return "other"
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--policy", required=True, help="a checkpoint of the train stage (.pt)")
+    p.add_argument("--variant", default="D0")
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--component", default="drawn", choices=COMPONENTS)
+    p.add_argument("--out", type=Path, help="a JSON file with every episode")
+    args = p.parse_args()
+    if args.out is not None and args.out.exists():  # before any work; nothing is replaced
+        p.error(f"--out {args.out}: already exists; remove it or name another file")
+    spec = envs.task_spec("maniskill", TASK)
+    envs.check_variant(spec, args.variant)
+    policy = load_rollout_policy(args.policy, args.component)
+    env = envs.make_env("maniskill", TASK)
+    face = -float(env.unwrapped.peg_half_sizes[0, 0])
+    seed0 = load_params().evaluate.seed
+    rows = []
+    for i in range(args.episodes):
+        seed = evaluation_seed(seed0, args.variant, i)
+        env.reset(seed=seed, variant=args.variant)
+        policy.reset(seed)
+        depth, success = [], False
+        for _ in range(spec.horizon):
+            env.step(policy.act(policy_observation(env, spec.objects)))
+            x, off_axis = head_in_hole(env)
+            depth.append(x)
+            if env.is_success():
+                success = True
+                break
+        rows.append(
+            {
+                "seed": seed,
+                "success": success,
+                "steps": len(depth),
+                "grasped": bool(env.subtask_signals()["grasp_peg"]),
+                "depth_m": round(depth[-1], 4),
+                "off_axis_m": round(off_axis, 4),
+                "deepest_m": round(max(depth), 4),
+                "moved_last_50_m": round(float(np.abs(np.diff(depth[-50:])).sum()), 4),
+            }
+        )
+        print(rows[-1], flush=True)
+    env.close()
+    kinds = Counter(failure_kind(r, face) for r in rows if not r["success"])
+    wins = len(rows) - sum(kinds.values())
+    print(f"{wins} of {len(rows)} inserted; failures: {dict(kinds)} (the face at x = {face:.4f})")
+    if args.out is not None:
+        args.out.write_text(json.dumps({"policy": args.policy, "episodes": rows}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
