@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 import envs
+from envs.maniskill.tasks import peg_insertion
 from mimicgen_pipe.evaluation import evaluation_seed, policy_observation
 from mimicgen_pipe.generation import Env
 from mimicgen_pipe.params import load_params
@@ -32,25 +33,20 @@ from mimicgen_pipe.policy import COMPONENTS
 from mimicgen_pipe.training import load_rollout_policy
 
 TASK = "peg_insertion"
-HOLE_RADIUS = 0.023  # [m] the task file's hole (the peg's 2.0 cm radius + 3 mm of clearance)
 
 
 def head_in_hole(env: Env) -> tuple[float, float]:
     """The peg head's depth along the hole's axis and its distance from the axis [m]."""
-    from envs.maniskill import lean
-
-    u = env.unwrapped
-    hole = lean.offset_pose(u.box, u.box_hole_offsets)
-    head = lean.offset_pose(u.peg, u.peg_head_offsets)
-    x, y, z = lean.pose_multiply(lean.pose_inverse(*hole), head)[0]
+    x, y, z = peg_insertion.head_in_hole(env.unwrapped)
     return float(x), float(np.hypot(y, z))
 
 
-def failure_kind(row: dict, face: float) -> str:
-    """Where a failed episode ended (face: the box's face along the hole's axis [m])."""
+def failure_kind(row: dict, face: float, radius: float) -> str:
+    """Where a failed episode ended (face: the box's face along the hole's axis, radius: the
+    hole's [m])."""
     if not row["grasped"]:
         return "dropped the peg"
-    if row["depth_m"] > face + 0.002 and row["off_axis_m"] < HOLE_RADIUS:
+    if row["depth_m"] > face + 0.002 and row["off_axis_m"] < radius:
         return "in the hole, short of success"
     if face - 0.02 < row["depth_m"] <= face + 0.002:
         aligned = row["off_axis_m"] < 0.01
@@ -73,6 +69,7 @@ def main() -> None:
     policy = load_rollout_policy(args.policy, args.component)
     env = envs.make_env("maniskill", TASK)
     face = -float(env.unwrapped.peg_half_sizes[0, 0])
+    radius = float(env.unwrapped.box_hole_radii[0])
     seed0 = load_params().evaluate.seed
     rows = []
     for i in range(args.episodes):
@@ -101,7 +98,7 @@ def main() -> None:
         )
         print(rows[-1], flush=True)
     env.close()
-    kinds = Counter(failure_kind(r, face) for r in rows if not r["success"])
+    kinds = Counter(failure_kind(r, face, radius) for r in rows if not r["success"])
     wins = len(rows) - sum(kinds.values())
     print(f"{wins} of {len(rows)} inserted; failures: {dict(kinds)} (the face at x = {face:.4f})")
     if args.out is not None:

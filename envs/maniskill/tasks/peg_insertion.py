@@ -42,13 +42,21 @@ def signals(env, info: dict) -> dict[str, bool]:
 def evaluate(env) -> dict[str, bool]:
     from envs.maniskill import lean
 
-    # ManiSkill's has_peg_inserted: the peg's head in the hole's frame (x along the hole)
-    hole = lean.offset_pose(env.box, env.box_hole_offsets)
-    head = lean.offset_pose(env.peg, env.peg_head_offsets)
-    x, y, z = lean.pose_multiply(lean.pose_inverse(*hole), head)[0]
+    # ManiSkill's has_peg_inserted
+    x, y, z = head_in_hole(env)
     r = env.box_hole_radii.numpy()[0]
     inserted = bool(F32(-0.015) <= x and -r <= y <= r and -r <= z <= r)
     return {"grasp_peg": lean.is_grasping(env, env.peg), "success": inserted}
+
+
+def head_in_hole(env) -> np.ndarray:
+    """The peg's head in the hole's frame (3,) [m], float32: x along the hole's axis (the
+    box's face at minus the peg's half-length), y and z across it. ``env``: ManiSkill's."""
+    from envs.maniskill import lean
+
+    hole = lean.offset_pose(env.box, env.box_hole_offsets)
+    head = lean.offset_pose(env.peg, env.peg_head_offsets)
+    return lean.pose_multiply(lean.pose_inverse(*hole), head)[0]
 
 
 def hole_frame(env) -> np.ndarray:
