@@ -32,7 +32,10 @@ TASK = "stack_cube"
 # 9 train episodes, more steps than a batch: robomimic drops a last partial batch
 LENGTHS = (40,) * 10
 PARAMS = f"task: {TASK}\nexport: {{formats: [robomimic, lerobot]}}\n"
-CAMERA = ("agentview", 84, 84)  # the contract's default camera and size
+# the contract's default cameras (a front view and a wrist view, as the paper's image agents
+# see) and size
+CAMERAS = ("agentview", "eye_in_hand")
+IMAGE_SIZE = (84, 84)
 
 
 def _dims(key: str) -> int:
@@ -49,23 +52,25 @@ def _pose_rows(rng: np.random.Generator, n: int) -> np.ndarray:
 def learnable_store(path: Path, images: bool) -> None:
     """A generated stack_cube store whose actions are a fixed smooth function of the
     observations (so that a few training steps lower the loss); with ``images``, an observed
-    one: agentview images in which a square moves with the end effector."""
+    one: images of both cameras in which a square moves with the end effector (across the
+    front view, up and down the wrist view)."""
     import envs
 
     keys = envs.task_spec("maniskill", TASK).obs_keys
     rng = np.random.default_rng(0)
     weights = rng.normal(size=(sum(map(_dims, keys)), 6)) / 4
-    _, h, w = CAMERA
+    h, w = IMAGE_SIZE
     steps = []
     for t in LENGTHS:
         obs = {k: np.cumsum(rng.normal(0, 0.05, (t, _dims(k))), 0).astype(np.float32) for k in keys}
         flat = np.concatenate([obs[k] for k in keys], 1)
         gripper = np.where(np.arange(t) < t // 2, 1.0, -1.0).astype(np.float32)
         actions = np.concatenate([np.tanh(flat @ weights), gripper[:, None]], 1)
-        frames = np.full((t, h, w, 3), 60, np.uint8)
-        corner = np.clip(((obs["eef_pos"][:, :2] + 1) * 30).astype(int), 0, h - 12)
-        for s, (y, x) in enumerate(corner):
-            frames[s, y : y + 12, x : x + 12] = (230, 200, 40)
+        frames = {c: np.full((t, h, w, 3), 60, np.uint8) for c in CAMERAS}
+        corner = np.clip(((obs["eef_pos"] + 1) * 30).astype(int), 0, h - 12)
+        for s, (y, x, z) in enumerate(corner):
+            frames["agentview"][s, y : y + 12, x : x + 12] = (230, 200, 40)
+            frames["eye_in_hand"][s, z : z + 12, 10:22] = (40, 200, 230)
         steps.append({
             "actions": actions.astype(np.float32),
             "env_state": rng.normal(size=(t, 20)).astype(np.float32),
@@ -76,7 +81,7 @@ def learnable_store(path: Path, images: bool) -> None:
             "gripper": gripper,
             "subtask_signals/grasp_cubeA": np.arange(t) >= t // 2,
             **{f"obs/{k}": v for k, v in obs.items()},
-            **({f"obs/{CAMERA[0]}_image": frames} if images else {}),
+            **({f"obs/{c}_image": frames[c] for c in CAMERAS} if images else {}),
         })  # fmt: skip
     n = len(LENGTHS)
     episodes = {"seed": np.arange(n, dtype=np.int64), "success": np.ones(n, bool),
@@ -84,7 +89,7 @@ def learnable_store(path: Path, images: bool) -> None:
     attrs = {"task": TASK, "variant": "D1", "backend": "maniskill", "robot": "panda",
              "control_mode": "pd_ee_delta_pose", "control_freq": 20}  # fmt: skip
     if images:
-        attrs["cameras"] = {CAMERA[0]: {"height": h, "width": w}}
+        attrs["cameras"] = {c: {"height": h, "width": w} for c in CAMERAS}
     write_store(path, "generated", steps, episodes, attrs)
 
 
@@ -135,7 +140,7 @@ def robomimic_losses(stdout: str) -> list[float]:
     ("config", "store", "epochs", "steps"),
     [
         ("bc_rnn_low_dim", "generated", 3, 2),
-        pytest.param("bc_rnn_image", "observed", 2, 2, marks=pytest.mark.slow),
+        pytest.param("bc_rnn_image", "observed", 3, 3, marks=pytest.mark.slow),
     ],
 )
 def test_robomimic_trains_bc_rnn_on_our_export(exports, tmp_path, config, store, epochs, steps):
@@ -190,8 +195,8 @@ def test_lerobot_trains_act_on_our_export(exports, tmp_path, store):
     res = learner("python", str(CHECKS / "check_lerobot_checkpoint.py"), str(policy), cwd=tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
     report = json.loads(res.stdout.splitlines()[-1])
-    camera, h, w = CAMERA
-    images = {f"observation.images.{camera}": [3, h, w]} if store == "observed" else {}
+    h, w = IMAGE_SIZE
+    images = {f"observation.images.{c}": [3, h, w] for c in CAMERAS if store == "observed"}
     assert report["type"] == "act"
     assert report["input_features"] == {
         "observation.state": [9],  # eef_pos, eef_quat, gripper_qpos

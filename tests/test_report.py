@@ -718,7 +718,8 @@ def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
     specs = [envs.task_spec("maniskill", t) for t in ("peg_insertion", "plug_charger")]
     runs = {
         "cpu_3seeds": [
-            m("train", "peg_insertion", data="D0", profile="cpu", seeds=3, gradient_steps=60000),
+            m("train", "peg_insertion", data="D0", profile="cpu", seeds=3, gradient_steps=60000,
+              train_episodes=4500, val_episodes=500),
             m("evaluate", "peg_insertion", "D0", data="D0", seeds=3, checkpoints=4, horizon=400,
               success_rate_max=60.0,
               success_rate_max_std=4.0, success_rate_last=50.0, success_rate_last_std=8.2),
@@ -751,14 +752,15 @@ def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
     assert list(read) == ["cpu_3seeds", "paper_gpu"]
     md = render_markdown(profile_blocks(suite_params([]), specs, read, load_paper_results(PAPER)))
     assert rows_of(md, "| peg_insertion |") == [
-        "| peg_insertion | D0 | cpu_3seeds | panda | cpu (cpu) | 100 | 200 | 3 | 4 | 400 "
+        "| peg_insertion | D0 | cpu_3seeds | 5000 | panda | cpu (cpu) | 100 | 200 | 3 | 4 | 400 "
         "| 60.0 ± 4.0 | 50.0 ± 8.2 | 98.0 ± 1.6 (Table P.1, Square D0) |",
-        "| peg_insertion | D0 | paper_gpu | panda | paper (NVIDIA H200, fp32) | 400 | 534 | 3 | 2 "
-        "| missing | 70.7 ± 3.4 | 64.0 ± 7.5 | 98.0 ± 1.6 (Table P.1, Square D0) |",
-        "| peg_insertion | D1 | cpu_3seeds | panda | cpu (cpu) | 100 | 200 | 3 | 4 | missing "
-        "| 40.0 ± 2.0 | 30.0 ± 1.0 | 80.7 ± 3.4 (Table P.1, Square D1) |",
+        "| peg_insertion | D0 | paper_gpu | missing | panda | paper (NVIDIA H200, fp32) | 400 "
+        "| 534 | 3 | 2 | missing | 70.7 ± 3.4 | 64.0 ± 7.5 | 98.0 ± 1.6 (Table P.1, Square D0) |",
+        "| peg_insertion | D1 | cpu_3seeds | missing | panda | cpu (cpu) | 100 | 200 | 3 | 4 "
+        "| missing | 40.0 ± 2.0 | 30.0 ± 1.0 | 80.7 ± 3.4 (Table P.1, Square D1) |",
     ]
     assert "11.0" not in md
-    e3 = "Table E.3: Square D0 Panda 98.0, other arms 79.3–87.3; Square D1 Panda 80.7, other"
-    assert e3 + " arms 55.3–69.3)" in md
+    e3 = "Table E.3, low-dim: Square D0 Panda 98.0, other arms 79.3–87.3; Square D1 Panda 80.7"
+    e2 = "Table E.2, image agents: Square D0 Panda 90.7, other arms 80.0–86.0; Square D1 Panda"
+    assert f"{e3}, other arms 55.3–69.3; {e2} 73.3, other arms 48.0–60.7)" in md
     assert "plug_charger" not in md

@@ -38,11 +38,11 @@ def profile_blocks(
     paper: PaperResults,
 ) -> list[Block]:
     """One row per (task, variant, run) with an evaluation, in that variant, of a policy on
-    generated data of that variant: the arm its data was generated with and it acts with,
-    the profile and where it trained, the network width, epochs, seeds, checkpoints rolled
-    out per seed and their rollout horizon [steps], and success rate max / last over training
-    as mean ± std over seeds, beside the paper's agents on generated data of the variant
-    (Panda's, Table P.1)."""
+    generated data of that variant: the demos it trained and validated on, the arm its data
+    was generated with and it acts with, the profile and where it trained, the network width,
+    epochs, seeds, checkpoints rolled out per seed and their rollout horizon [steps], and
+    success rate max / last over training as mean ± std over seeds, beside the paper's agents
+    on generated data of the variant (Panda's, Table P.1)."""
     backend = params.suite.backend
     rows = []
     for spec, variant, (name, ms) in product(specs, VARIANTS, runs.items()):
@@ -61,11 +61,13 @@ def profile_blocks(
         device = t.get("device", "cpu") + (f", {t['matmul']}" if "matmul" in t else "")
         ref = paper.find(table="P.1", task=spec.paper_task, data=variant, variant=variant)
         v = ev.values
+        demos = t.get("train_episodes", 0) + t.get("val_episodes", 0) or None
         rows.append(
             (
                 spec.name,
                 variant,
                 name,
+                fmt(demos, 0),
                 ev.robot or MISSING,
                 f"{profile or MISSING} ({device})",
                 str(prof.hidden) if prof is not None else MISSING,
@@ -80,18 +82,21 @@ def profile_blocks(
         )
     if not rows:
         return []
-    columns = ("task", "variant", "run", "arm", "profile (trained on)", "hidden", "epochs",
-               "seeds", "checkpoints per seed", "horizon", "generated SR max", "SR last",
+    columns = ("task", "variant", "run", "demos", "arm", "profile (trained on)", "hidden",
+               "epochs", "seeds", "checkpoints per seed", "horizon", "generated SR max", "SR last",
                "paper (P.1, generated data)")  # fmt: skip
     return [
         Heading(2, "Task suite: policies by training profile (%)"),
         Text(
-            "BC-RNN on 1000 generated demos of a variant (the suite's policy data; the "
+            "BC-RNN on generated demos of a variant (1000: the suite's policy data; the "
             "default pipeline's store for its task; for another arm, demos generated for it "
-            "from the same source demos, the policy acting with it), evaluated in that "
+            "from the same source demos, the policy acting with it; more: the first of the "
+            "dataset-size store's), training and validation demos together, evaluated in that "
             "variant with 50 episodes per checkpoint; success rate mean ± std over training "
             "seeds, max over the checkpoints evaluated and the last. The paper's column is "
-            f"its Panda agents{_other_arms(paper)}. Runs in `suite/metrics/{PROFILES}/<run>`; "
+            f"its Panda agents{_other_arms(paper)}. Every policy here observes object poses "
+            "(low-dim), as Table P.1's and E.3's do. "
+            f"Runs in `suite/metrics/{PROFILES}/<run>`; "
             "a GPU run's weights come back as float16 (scripts/paper_profile.py)."
         ),
         Table(columns, tuple(rows)),
@@ -99,19 +104,21 @@ def profile_blocks(
 
 
 def _other_arms(paper: PaperResults) -> str:
-    """The paper's low-dim agents on data generated for other arms (Table E.3), as a clause
-    of the table's text."""
-    cells = []
-    for variant in VARIANTS:
-        for task in sorted({e.task for e in paper.find(table="E.3", variant=variant)}):
-            found = paper.find(table="E.3", task=task, variant=variant)
-            panda = [e.value for e in found if e.condition == "Panda"]
-            other = [e.value for e in found if e.condition != "Panda"]
-            if panda and other:
-                cells.append(
-                    f"{task} {variant} Panda {panda[0]:.1f}, "
-                    f"other arms {min(other):.1f}–{max(other):.1f}"
-                )
-    if not cells:
-        return ""
-    return " (on data generated for other arms, Table E.3: " + "; ".join(cells) + ")"
+    """The paper's agents on data generated for other arms, low-dim (Table E.3) and image
+    (Table E.2), as a clause of the table's text."""
+    tables = []
+    for table, kind in (("E.3", "low-dim"), ("E.2", "image agents")):
+        cells = []
+        for variant in VARIANTS:
+            for task in sorted({e.task for e in paper.find(table=table, variant=variant)}):
+                found = paper.find(table=table, task=task, variant=variant)
+                panda = [e.value for e in found if e.condition == "Panda"]
+                other = [e.value for e in found if e.condition != "Panda"]
+                if panda and other:
+                    cells.append(
+                        f"{task} {variant} Panda {panda[0]:.1f}, "
+                        f"other arms {min(other):.1f}–{max(other):.1f}"
+                    )
+        if cells:
+            tables.append(f"Table {table}, {kind}: " + "; ".join(cells))
+    return f" (on data generated for other arms, {'; '.join(tables)})" if tables else ""

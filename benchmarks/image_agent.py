@@ -1,0 +1,139 @@
+"""What an image-based agent (the paper's Table E.2) costs on this machine, against a
+low-dim one (Table E.3): seconds per gradient step of robomimic's BC-RNN with the image
+config (configs/robomimic/bc_rnn_image.json: ResNet18 encoder per camera, 2x1000 LSTM,
+batch 16) and with the low-dim config (bc_rnn_low_dim.json: 2x400 LSTM, batch 100), both
+trained by robomimic's own train.py in the learners' virtualenv on the robomimic export of
+the same few observed demos; the observe stage's wall seconds per step for their images
+(its ``workers``). From them, the hours the paper's profiles take here: images for 1000 demos, 600
+epochs x 500 steps (image) and 2000 x 100 (low-dim) of training per policy. Written to
+metrics/benchmarks/image_agent.json.
+
+The demos are the first ``--episodes`` of a generated stack_cube store (default: the
+default pipeline's D0 store); both cameras (agentview, eye_in_hand, 84x84), as the paper's
+image agents see a front view and a wrist view. An epoch's time is robomimic's own
+(``Time_Epoch``); the first epoch is a warm-up and is not counted.
+
+    python benchmarks/image_agent.py --episodes 4 --epochs 3 --steps 20
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+from _machine import figures_path, machine
+
+REPO = Path(__file__).resolve().parent.parent
+LEARNERS = REPO / ".venv-learners" / "bin" / "python"
+CAMERAS = ["agentview_image", "eye_in_hand_image"]
+# the paper's profiles (robomimic's defaults, paper Appendix N): epochs x steps per epoch
+PAPER_STEPS = {"image": 600 * 500, "low_dim": 2000 * 100}
+
+
+def run(*args: str, cwd: Path, env: dict | None = None) -> str:
+    """Run a command; its stdout, or a RuntimeError with its last output."""
+    done = subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(args[:3])}: exit {done.returncode}\n{done.stderr[-2000:]}")
+    return done.stdout
+
+
+def epoch_minutes(stdout: str) -> list[float]:
+    """robomimic's Time_Epoch [min] of every epoch train.py printed."""
+    blocks = re.findall(r"^Train Epoch \d+\n(\{.*?^\})", stdout, re.M | re.S)
+    return [json.loads(b)["Time_Epoch"] for b in blocks]
+
+
+def seconds_per_step(name: str, dataset: Path, work: Path, epochs: int, steps: int) -> float:
+    """Median seconds per gradient step over epochs 2.. of robomimic's train.py with
+    configs/robomimic/<name>.json, only its run length, cameras and output folder changed."""
+    config = json.loads((REPO / "configs/robomimic" / f"{name}.json").read_text())
+    config["train"] |= {"output_dir": str(work / name), "num_epochs": epochs}
+    config["experiment"]["epoch_every_n_steps"] = steps
+    config["experiment"]["save"]["enabled"] = False
+    if config["observation"]["modalities"]["obs"]["rgb"]:
+        config["observation"]["modalities"]["obs"]["rgb"] = CAMERAS
+    path = work / f"{name}.json"
+    path.write_text(json.dumps(config, indent=4))
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env |= {"WANDB_MODE": "disabled", "MPLCONFIGDIR": str(work / "mpl")}
+    out = run(str(LEARNERS), "-m", "robomimic.scripts.train", "--config", str(path),
+              "--dataset", str(dataset), cwd=work, env=env)  # fmt: skip
+    minutes = epoch_minutes(out)
+    if len(minutes) != epochs:
+        raise RuntimeError(f"{name}: {len(minutes)} of {epochs} epochs logged")
+    return statistics.median(minutes[1:]) * 60 / steps
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--store", type=Path, default=REPO / "data/generated/stack_cube_D0.zarr")
+    ap.add_argument("--episodes", type=int, default=4, help="demos observed and trained on")
+    ap.add_argument("--epochs", type=int, default=3, help="epochs per config (first: warm-up)")
+    ap.add_argument("--steps", type=int, default=20, help="gradient steps per epoch")
+    a = ap.parse_args()
+    if not LEARNERS.exists():
+        sys.exit(f"{LEARNERS}: missing; scripts/setup.sh makes the learners' virtualenv")
+    if a.epochs < 2:
+        sys.exit("--epochs: at least 2 (the first is a warm-up)")
+    cli = str(Path(sys.executable).parent / "mimicgen-pipe")
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        params = yaml.safe_load((REPO / "params.yaml").read_text())
+        params["observe"] |= {"cameras": ["agentview", "eye_in_hand"], "height": 84,
+                              "width": 84, "episodes": a.episodes}  # fmt: skip
+        params["export"]["formats"] = ["robomimic"]
+        (work / "params.yaml").write_text(yaml.safe_dump(params))
+        run(cli, "observe", "--backend", "maniskill", "--task", "stack_cube", "--variant",
+            "D0", "--store", str(a.store), "--out", "observed.zarr", "--metrics",
+            "observe.json", cwd=work)  # fmt: skip
+        observed = json.loads((work / "observe.json").read_text())
+        run(cli, "export", "--backend", "maniskill", "--task", "stack_cube", "--store",
+            "observed.zarr", "--out", "export", "--metrics", "export.json", cwd=work)  # fmt: skip
+        dataset = work / "export" / "demos.hdf5"
+        per_step = {n: seconds_per_step(f"bc_rnn_{n}", dataset, work, a.epochs, a.steps)
+                    for n in PAPER_STEPS}  # fmt: skip
+        frames = int(observed["frames"])
+
+    import zarr
+
+    ends = np.asarray(zarr.open_group(str(a.store), mode="r")["meta/episode_ends"])
+    steps_per_demo = float(np.median(np.diff(ends, prepend=0)))
+    render_s = observed["seconds"] / frames  # the stage's wall time, both workers
+    figures = {
+        **machine(),
+        "episodes": a.episodes,
+        "observed_steps": frames,
+        "epochs": a.epochs,
+        "steps_per_epoch": a.steps,
+        "cameras": CAMERAS,
+        "observe_seconds_per_step": round(render_s, 4),
+        "seconds_per_step_image": round(per_step["image"], 4),
+        "seconds_per_step_low_dim": round(per_step["low_dim"], 4),
+        "image_over_low_dim": round(per_step["image"] / per_step["low_dim"], 1),
+        "median_demo_steps": steps_per_demo,
+        "hours_observe_1000_demos": round(render_s * steps_per_demo * 1000 / 3600, 1),
+        "hours_paper_profile_image": round(per_step["image"] * PAPER_STEPS["image"] / 3600, 1),
+        "hours_paper_profile_low_dim": round(
+            per_step["low_dim"] * PAPER_STEPS["low_dim"] / 3600, 1
+        ),
+    }
+    for k, v in figures.items():
+        print(f"{k}: {v}")
+    path = figures_path(__file__)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(figures, indent=1) + "\n")
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
