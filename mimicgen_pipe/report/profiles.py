@@ -90,8 +90,9 @@ def profile_blocks(
         Text(
             "BC-RNN on generated demos of a variant (1000: the suite's policy data; the "
             "default pipeline's store for its task; for another arm, demos generated for it "
-            "from the same source demos, the policy acting with it; more: the first of the "
-            "dataset-size store's), training and validation demos together, evaluated in that "
+            "from the same source demos, the policy acting with it; more: a longer run of the "
+            "same generation, whose first 1000 demos are those), training and validation "
+            "demos together, evaluated in that "
             "variant with 50 episodes per checkpoint; success rate mean ± std over training "
             "seeds, max over the checkpoints evaluated and the last. The paper's column is "
             f"its Panda agents{_other_arms(paper)}. Every policy here observes object poses "
