@@ -4,14 +4,13 @@ config (configs/robomimic/bc_rnn_image.json: ResNet18 encoder per camera, 2x1000
 batch 16) and with the low-dim config (bc_rnn_low_dim.json: 2x400 LSTM, batch 100), both
 trained by robomimic's own train.py in the learners' virtualenv on the robomimic export of
 the same few observed demos; the observe stage's wall seconds per step for their images
-(its ``workers``). From them, the hours the paper's profiles take here: images for 1000 demos, 600
-epochs x 500 steps (image) and 2000 x 100 (low-dim) of training per policy. Written to
-metrics/benchmarks/image_agent.json.
+(its ``workers``). From them, the hours the paper's profiles take here: images for 1000
+demos, 600 epochs x 500 steps (image) and 2000 x 100 (low-dim) of training per policy.
+Written to metrics/benchmarks/image_agent.json.
 
 The demos are the first ``--episodes`` of a generated stack_cube store (default: the
-default pipeline's D0 store); both cameras (agentview, eye_in_hand, 84x84), as the paper's
-image agents see a front view and a wrist view. An epoch's time is robomimic's own
-(``Time_Epoch``); the first epoch is a warm-up and is not counted.
+default pipeline's D0 store), observed with the image config's cameras at 84x84. An epoch's
+time is robomimic's own (``Time_Epoch``); the first epoch is a warm-up and is not counted.
 
     python benchmarks/image_agent.py --episodes 4 --epochs 3 --steps 20
 """
@@ -34,7 +33,6 @@ from _machine import figures_path, machine
 
 REPO = Path(__file__).resolve().parent.parent
 LEARNERS = REPO / ".venv-learners" / "bin" / "python"
-CAMERAS = ["agentview_image", "eye_in_hand_image"]
 # the paper's profiles (robomimic's defaults, paper Appendix N): epochs x steps per epoch
 PAPER_STEPS = {"image": 600 * 500, "low_dim": 2000 * 100}
 
@@ -55,13 +53,11 @@ def epoch_minutes(stdout: str) -> list[float]:
 
 def seconds_per_step(name: str, dataset: Path, work: Path, epochs: int, steps: int) -> float:
     """Median seconds per gradient step over epochs 2.. of robomimic's train.py with
-    configs/robomimic/<name>.json, only its run length, cameras and output folder changed."""
+    configs/robomimic/<name>.json, only its run length and output folder changed."""
     config = json.loads((REPO / "configs/robomimic" / f"{name}.json").read_text())
     config["train"] |= {"output_dir": str(work / name), "num_epochs": epochs}
     config["experiment"]["epoch_every_n_steps"] = steps
     config["experiment"]["save"]["enabled"] = False
-    if config["observation"]["modalities"]["obs"]["rgb"]:
-        config["observation"]["modalities"]["obs"]["rgb"] = CAMERAS
     path = work / f"{name}.json"
     path.write_text(json.dumps(config, indent=4))
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
@@ -72,6 +68,12 @@ def seconds_per_step(name: str, dataset: Path, work: Path, epochs: int, steps: i
     if len(minutes) != epochs:
         raise RuntimeError(f"{name}: {len(minutes)} of {epochs} epochs logged")
     return statistics.median(minutes[1:]) * 60 / steps
+
+
+def image_keys() -> list[str]:
+    """The image config's camera observations (robomimic's ``rgb`` modality)."""
+    config = json.loads((REPO / "configs/robomimic/bc_rnn_image.json").read_text())
+    return config["observation"]["modalities"]["obs"]["rgb"]
 
 
 def main() -> None:
@@ -89,8 +91,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         params = yaml.safe_load((REPO / "params.yaml").read_text())
-        params["observe"] |= {"cameras": ["agentview", "eye_in_hand"], "height": 84,
-                              "width": 84, "episodes": a.episodes}  # fmt: skip
+        cameras = [k.removesuffix("_image") for k in image_keys()]
+        params["observe"] |= {"cameras": cameras, "height": 84, "width": 84,
+                              "episodes": a.episodes}  # fmt: skip
         params["export"]["formats"] = ["robomimic"]
         (work / "params.yaml").write_text(yaml.safe_dump(params))
         run(cli, "observe", "--backend", "maniskill", "--task", "stack_cube", "--variant",
@@ -115,7 +118,7 @@ def main() -> None:
         "observed_steps": frames,
         "epochs": a.epochs,
         "steps_per_epoch": a.steps,
-        "cameras": CAMERAS,
+        "cameras": image_keys(),
         "observe_seconds_per_step": round(render_s, 4),
         "seconds_per_step_image": round(per_step["image"], 4),
         "seconds_per_step_low_dim": round(per_step["low_dim"], 4),
