@@ -31,6 +31,8 @@ import numpy as np
 import yaml
 from _machine import figures_path, machine
 
+from mimicgen_pipe.store import open_store
+
 REPO = Path(__file__).resolve().parent.parent
 LEARNERS = REPO / ".venv-learners" / "bin" / "python"
 # the paper's profiles (robomimic's defaults, paper Appendix N): epochs x steps per epoch
@@ -87,11 +89,14 @@ def main() -> None:
         sys.exit(f"{LEARNERS}: missing; scripts/setup.sh makes the learners' virtualenv")
     if a.epochs < 2:
         sys.exit("--epochs: at least 2 (the first is a warm-up)")
+    # the demos' length before any work: a store that is not one fails here
+    steps_per_demo = float(np.median(open_store(a.store, kind="generated").lengths))
+    keys = image_keys()
     cli = str(Path(sys.executable).parent / "mimicgen-pipe")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         params = yaml.safe_load((REPO / "params.yaml").read_text())
-        cameras = [k.removesuffix("_image") for k in image_keys()]
+        cameras = [k.removesuffix("_image") for k in keys]
         params["observe"] |= {"cameras": cameras, "height": 84, "width": 84,
                               "episodes": a.episodes}  # fmt: skip
         params["export"]["formats"] = ["robomimic"]
@@ -107,10 +112,6 @@ def main() -> None:
                     for n in PAPER_STEPS}  # fmt: skip
         frames = int(observed["frames"])
 
-    import zarr
-
-    ends = np.asarray(zarr.open_group(str(a.store), mode="r")["meta/episode_ends"])
-    steps_per_demo = float(np.median(np.diff(ends, prepend=0)))
     render_s = observed["seconds"] / frames  # the stage's wall time, both workers
     figures = {
         **machine(),
@@ -118,7 +119,7 @@ def main() -> None:
         "observed_steps": frames,
         "epochs": a.epochs,
         "steps_per_epoch": a.steps,
-        "cameras": image_keys(),
+        "cameras": keys,
         "observe_seconds_per_step": round(render_s, 4),
         "seconds_per_step_image": round(per_step["image"], 4),
         "seconds_per_step_low_dim": round(per_step["low_dim"], 4),
