@@ -9,11 +9,13 @@ then checkpointed and evaluated here as the train stage's own policies.
     # not installed): every task and seed as one stacked network (mimicgen_pipe.
     # stacked_training), checkpoints every --every epochs, --deadline seconds at most
     python scripts/paper_profile.py train --packed data/gpu/*.npz --out /tmp/paper --deadline 450
-    # there too: checkpoints as float16 bundles of at most 3 (returned from a machine that
-    # sends back little), the epochs asked for and each run's last; --part k/n: the k-th share
-    python scripts/paper_profile.py collect --trained /tmp/paper --epochs 1000 2000 --out OUT
+    # there too: each run's checkpoints of --epochs, of --spread N (N in all, one period
+    # apart, the last included; the period printed) and its last, in files of at most
+    # --file-mb (16 MiB: two float32 checkpoints at hidden 400; --dtype float16 halves them)
+    # for a machine that sends back a few small files; --part k/n: the k-th share of them
+    python scripts/paper_profile.py collect --trained /tmp/paper --spread 4 --out OUT
     # here: the train stage's checkpoints, curve and metrics, then the evaluate stage (with
-    # params whose evaluate.every_epochs picks the returned epochs)
+    # params whose evaluate.every_epochs is the period collect printed)
     python scripts/paper_profile.py unpack --bundles OUT --packed data/gpu/peg_insertion_D0.npz \\
         --policies data/policies/peg_insertion_D0_paper \\
         --metrics suite/metrics/profiles/paper_gpu/train_peg_insertion_D0.json \\
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import lzma
 import time
@@ -38,8 +41,6 @@ import torch
 
 from mimicgen_pipe.policy import BCRNN, PolicyConfig
 from mimicgen_pipe.training import POLICY_DIR, SequenceData, TrainConfig, TrainingRun
-
-BUNDLE = 3  # float16 checkpoints per returned file (4 MB each at hidden 400)
 
 
 def pack(args: argparse.Namespace) -> None:
@@ -169,11 +170,17 @@ def train(args: argparse.Namespace) -> None:
 
 def collect(args: argparse.Namespace) -> None:
     trained, out = Path(args.trained), Path(args.out)
-    last = {d: max(d.glob("epoch*.pt")) for d in trained.glob("*/seed*")}
+    saved = {d: sorted(d.glob("epoch*.pt")) for d in trained.glob("*/seed*")}
+    wanted = set(args.epochs)
+    for paths in saved.values():
+        # --spread N: the multiples of one period (a multiple of the saving period) and the
+        # last, N in all, so that evaluate.every_epochs = period rolls out exactly these
+        epochs = [int(p.stem[5:]) for p in paths]
+        period = epochs[0] * -(-epochs[-1] // (args.spread * epochs[0]))
+        wanted |= set(range(period, epochs[-1] + 1, period))
+        print(f"{paths[0].parent}: evaluate.every_epochs {period} rolls out the spread")
     chosen = sorted(
-        p
-        for p in trained.glob("*/seed*/epoch*.pt")
-        if int(p.stem[5:]) in args.epochs or p == last[p.parent]
+        p for paths in saved.values() for p in paths if int(p.stem[5:]) in wanted or p == paths[-1]
     )
     k, n = (int(x) for x in args.part.split("/"))
     share = chosen[k - 1 :: n]
@@ -182,14 +189,26 @@ def collect(args: argparse.Namespace) -> None:
     }
     summary = json.loads((trained / "summary.json").read_text())
     out.mkdir(parents=True, exist_ok=True)
-    for b in range(0, len(share), BUNDLE):
-        bundle = {}
-        for p in share[b : b + BUNDLE]:
-            state = torch.load(p, weights_only=True)
-            bundle[str(p.relative_to(trained))] = {k: v.half() for k, v in state.items()}
-        torch.save(bundle, out / f"bundle{k}_{b // BUNDLE}.pt")
+    dtype, limit = getattr(torch, args.dtype), args.file_mb * 2**20
+    bundles: list[dict] = [{}]
+    for p in share:  # as many checkpoints per file as --file-mb allows, by their saved size
+        key = str(p.relative_to(trained))
+        state = {k: v.to(dtype) for k, v in torch.load(p, weights_only=True).items()}
+        if _saved_size({key: state}) > limit:
+            raise SystemExit(f"{p}: over --file-mb {args.file_mb} as {args.dtype}")
+        if _saved_size(bundles[-1] | {key: state}) > limit:
+            bundles.append({})
+        bundles[-1][key] = state
+    for b, bundle in enumerate(bundles):
+        torch.save(bundle, out / f"bundle{k}_{b}.pt")
     (out / f"curves{k}.json").write_text(json.dumps({"summary": summary, "curves": curves}))
-    print(f"part {k}/{n}: {len(share)} checkpoints of {len(chosen)}")
+    print(f"part {k}/{n}: {len(share)} checkpoints of {len(chosen)} in {len(bundles)} files")
+
+
+def _saved_size(obj: dict) -> int:
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    return buffer.tell()
 
 
 def unpack(args: argparse.Namespace) -> None:
@@ -206,6 +225,7 @@ def unpack(args: argparse.Namespace) -> None:
 
 
 def _unpack(args: argparse.Namespace) -> None:
+    from mimicgen_pipe.errors import InputError
     from mimicgen_pipe.metrics import metrics_identity, write_metrics
     from mimicgen_pipe.training import checkpoint_path, save_checkpoint
     from stages.train import write_curve
@@ -228,13 +248,16 @@ def _unpack(args: argparse.Namespace) -> None:
             model = BCRNN(config)
             model.load_state_dict({k: v.float() for k, v in state.items()})
             extra = {"seed": seed, "epoch": epoch, "step": epoch * s["steps_per_epoch"]}
+            returned_as = str(next(iter(state.values())).dtype).removeprefix("torch.")
             extra |= {
                 "trained_on": summary["device"],
                 "matmul": summary.get("matmul", "fp32"),
-                "weights_returned_as": "float16",
+                "weights_returned_as": returned_as,
             }
             save_checkpoint(checkpoint_path(Path(args.policies), seed, epoch), model, meta | extra)
             written += 1
+    if not written:
+        raise InputError(f"{args.bundles}: no checkpoint of {header['name']} in its bundles")
     rows = []
     for key, text in sorted(curves.items()):
         name, seed_dir = key.split("/")
@@ -249,7 +272,7 @@ def _unpack(args: argparse.Namespace) -> None:
         "profile": "paper",
         "device": summary["device"],
         "matmul": summary.get("matmul", "fp32"),
-        "weights_returned_as": "float16",
+        "weights_returned_as": returned_as,
         "seeds": len(last),
         "epochs": last_epoch,
         "data_run_id": meta["data_run_id"],
@@ -285,7 +308,10 @@ def main(argv: list[str] | None = None) -> None:
     a.add_argument("--tf32", action="store_true", help="TF32 matrix products (faster, coarser)")
     a = sub.add_parser("collect")
     a.add_argument("--trained", required=True)
-    a.add_argument("--epochs", type=int, nargs="+", required=True)
+    a.add_argument("--epochs", type=int, nargs="*", default=[], help="and each run's last")
+    a.add_argument("--spread", type=int, default=1, help="N checkpoints per run, one period apart")
+    a.add_argument("--dtype", choices=["float16", "float32"], default="float32")
+    a.add_argument("--file-mb", type=float, default=16, help="[MiB] most bytes in one file")
     a.add_argument("--part", default="1/1")
     a.add_argument("--out", required=True)
     a = sub.add_parser("unpack")

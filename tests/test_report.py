@@ -733,7 +733,8 @@ def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
         ],
         "paper_gpu": [
             m("train", "peg_insertion", data="D0", profile="paper", seeds=3, epochs=534,
-              device="NVIDIA H200", matmul="fp32", gradient_steps=160200),
+              device="NVIDIA H200", matmul="fp32", gradient_steps=160200,
+              weights_returned_as="float16"),
             m("evaluate", "peg_insertion", "D0", data="D0", seeds=3, checkpoints=2,
               success_rate_max=70.7,
               success_rate_max_std=3.4, success_rate_last=64.0, success_rate_last_std=7.5),
@@ -754,7 +755,8 @@ def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
     assert rows_of(md, "| peg_insertion |") == [
         "| peg_insertion | D0 | cpu_3seeds | 5000 | panda | cpu (cpu) | 100 | 200 | 3 | 4 | 400 "
         "| 60.0 ± 4.0 | 50.0 ± 8.2 | 98.0 ± 1.6 (Table P.1, Square D0) |",
-        "| peg_insertion | D0 | paper_gpu | missing | panda | paper (NVIDIA H200, fp32) | 400 "
+        "| peg_insertion | D0 | paper_gpu | missing | panda | paper (NVIDIA H200, fp32, float16 "
+        "weights) | 400 "
         "| 534 | 3 | 2 | missing | 70.7 ± 3.4 | 64.0 ± 7.5 | 98.0 ± 1.6 (Table P.1, Square D0) |",
         "| peg_insertion | D1 | cpu_3seeds | missing | panda | cpu (cpu) | 100 | 200 | 3 | 4 "
         "| missing | 40.0 ± 2.0 | 30.0 ± 1.0 | 80.7 ± 3.4 (Table P.1, Square D1) |",

@@ -163,7 +163,8 @@ def test_the_train_stage_gets_a_stacks_results_as_it_gets_side_by_side_runs():
 
 def test_paper_profile_script_packs_trains_returns_and_unpacks_loadable_checkpoints(tmp_path):
     """scripts/paper_profile.py end to end on the CPU with a tiny network: the packed arrays
-    come back bit for bit, and the returned float16 checkpoints load as the train stage's."""
+    come back bit for bit, and the returned checkpoints (float32 exactly, or float16) load as the
+    train stage's."""
     import importlib.util
     import json
 
@@ -194,25 +195,36 @@ def test_paper_profile_script_packs_trains_returns_and_unpacks_loadable_checkpoi
         for key in ("obs", "actions", "episode_ends"):
             assert np.array_equal(getattr(got, key), getattr(want, key))
             assert getattr(got, key).dtype == getattr(want, key).dtype
-    trained, out = tmp_path / "trained", tmp_path / "out"
+    trained, out, half = tmp_path / "trained", tmp_path / "out", tmp_path / "half"
     pp.main(["train", "--packed", str(packed), "--out", str(trained), "--every", "1",
-             "--device", "cpu"])  # fmt: skip
-    pp.main(["collect", "--trained", str(trained), "--epochs", "1", "--out", str(out)])
-    policies, metrics = tmp_path / "policies", tmp_path / "train.json"
-    plot = tmp_path / "curve.csv"
-    pp.main(["unpack", "--bundles", str(out), "--packed", str(packed), "--policies",
-             str(policies), "--metrics", str(metrics), "--plot", str(plot)])  # fmt: skip
-    for seed in (0, 1):
-        for epoch in (1, 2):  # epoch 1 asked for, epoch 2 the last
-            model, m = load_checkpoint(policies / f"seed{seed}" / f"epoch{epoch:05d}.pt")
-            assert (m["seed"], m["epoch"], m["step"]) == (seed, epoch, 5 * epoch)
-            assert m["weights_returned_as"] == "float16" and m["task"] == "peg_insertion"
-            full = torch.load(trained / "peg_insertion_D0" / f"seed{seed}" / f"epoch{epoch:05d}.pt")
-            for k, v in model.state_dict().items():
-                assert torch.equal(v, full[k].half().float())
+             "--epochs", "4", "--device", "cpu"])  # fmt: skip
+    # epoch 1 asked for, 2 of --spread 2 (halfway to the last), 4 the last; 3 left there
+    pp.main(["collect", "--trained", str(trained), "--epochs", "1", "--spread", "2", "--out",
+             str(out), "--file-mb", "0.05"])  # fmt: skip
+    assert len(list(out.glob("bundle*.pt"))) > 1  # the files kept under --file-mb
+    pp.main(["collect", "--trained", str(trained), "--spread", "1", "--dtype", "float16",
+             "--out", str(half)])  # fmt: skip
+    for bundles, dtype, epochs in ((out, "float32", (1, 2, 4)), (half, "float16", (4,))):
+        policies, metrics = tmp_path / f"policies_{dtype}", tmp_path / f"train_{dtype}.json"
+        pp.main(["unpack", "--bundles", str(bundles), "--packed", str(packed), "--policies",
+                 str(policies), "--metrics", str(metrics), "--plot",
+                 str(tmp_path / f"curve_{dtype}.csv")])  # fmt: skip
+        assert sorted(p.name for p in (policies / "seed0").glob("*.pt")) == [
+            f"epoch{e:05d}.pt" for e in epochs
+        ]
+        for seed in (0, 1):
+            for epoch in epochs:
+                model, m = load_checkpoint(policies / f"seed{seed}" / f"epoch{epoch:05d}.pt")
+                assert (m["seed"], m["epoch"], m["step"]) == (seed, epoch, 5 * epoch)
+                assert m["weights_returned_as"] == dtype and m["task"] == "peg_insertion"
+                path = trained / "peg_insertion_D0" / f"seed{seed}" / f"epoch{epoch:05d}.pt"
+                full = torch.load(path)
+                for k, v in model.state_dict().items():
+                    assert torch.equal(v, full[k].to(getattr(torch, dtype)).float())
+        assert json.loads(metrics.read_text())["weights_returned_as"] == dtype
     written = json.loads(metrics.read_text())
-    assert (written["profile"], written["seeds"], written["epochs"]) == ("paper", 2, 2)
-    assert written["gradient_steps"] == 20 and written["matmul"] == "fp32"
+    assert (written["profile"], written["seeds"], written["epochs"]) == ("paper", 2, 4)
+    assert written["gradient_steps"] == 40 and written["matmul"] == "fp32"
     # a directory of anything but checkpoints is never written into
     mine = tmp_path / "mine"
     mine.mkdir()

@@ -4,7 +4,7 @@ profile with 3 seeds, the paper's profile trained on a GPU by scripts/paper_prof
 generated for another arm), beside Tables P.1 and E.3. Each run's metrics live in their own
 folder, PROFILES/<run> under the suite's metrics, as train and evaluate metrics of data D0
 or D1 (evaluated in the same variant); a train metric of a GPU run also says its device,
-matmul precision and epochs reached."""
+matmul precision, epochs reached and the precision its weights came back in."""
 
 from __future__ import annotations
 
@@ -58,7 +58,12 @@ def profile_blocks(
         epochs = t.get("epochs")
         if epochs is None and prof is not None and seeds:
             epochs = t["gradient_steps"] // (seeds * prof.steps_per_epoch)
-        device = t.get("device", "cpu") + (f", {t['matmul']}" if "matmul" in t else "")
+        device = ", ".join(
+            [t.get("device", "cpu")]
+            + ([t["matmul"]] if "matmul" in t else [])
+            # weights rounded on their way back move a policy's success (results.md)
+            + (["float16 weights"] if t.get("weights_returned_as") == "float16" else [])
+        )
         ref = paper.find(table="P.1", task=spec.paper_task, data=variant, variant=variant)
         v = ev.values
         demos = t.get("train_episodes", 0) + t.get("val_episodes", 0) or None
@@ -97,8 +102,9 @@ def profile_blocks(
             "seeds, max over the checkpoints evaluated and the last. The paper's column is "
             f"its Panda agents{_other_arms(paper)}. Every policy here observes object poses "
             "(low-dim), as Table P.1's and E.3's do. "
-            f"Runs in `suite/metrics/{PROFILES}/<run>`; "
-            "a GPU run's weights come back as float16 (scripts/paper_profile.py)."
+            f"Runs in `suite/metrics/{PROFILES}/<run>`; a GPU run (scripts/paper_profile.py) "
+            "names its device and matmul precision, and its weights where they came back as "
+            "float16."
         ),
         Table(columns, tuple(rows)),
     ]
