@@ -1,0 +1,138 @@
+"""Where a stack_pyramid policy's rollouts fail: how cube A leaves the hand and where it
+lands beside cube B, whether the hand goes on to cube C, and how the scene ends.
+
+    python scripts/stack_pyramid_rollouts.py \\
+        --policy data/policies/stack_pyramid_D0_paper_h100/seed0/epoch00300.pt [more .pt] \\
+        [--episodes 50] [--variant D0] [--component most_likely] [--out rollouts.json]
+
+Rolls each checkpoint out on the evaluate stage's first scenes of the variant (one process,
+the stage's seeds: the same rollouts), up to the task's horizon, and prints per episode:
+success, steps, the cube grasped first, A's centre relative to B's when A left the grasp
+(height above B's and distance in the table's plane [m]; the demos set A down 3 mm above the
+table, its centre 4.3 cm from B's), and at the end: A upright or tipped, how far B was
+pushed in the plane [m], the hand's closest approach to C [m]. A summary sorts the failures
+(:func:`failure_kind`) and compares A's release height in successes and failures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+import envs
+from envs.maniskill.tasks.stack_pyramid import NEAR
+from mimicgen_pipe.evaluation import evaluation_seed, policy_observation
+from mimicgen_pipe.params import load_params
+from mimicgen_pipe.policy import COMPONENTS
+from mimicgen_pipe.training import load_rollout_policy
+
+TASK = "stack_pyramid"
+HIGH = 0.01  # [m] A let go this far above B's height or more: dropped, not set down
+UPRIGHT = 0.5  # A's z axis' world z below this: A lies on a side
+
+
+def failure_kind(row: dict) -> str:
+    """What a failed episode ``row`` (as :func:`episode` returns) went wrong at first."""
+    if row["first_grasped"] == "cubeC":
+        return "took C before A"
+    if row["first_grasped"] is None:
+        return "grasped no cube"
+    if row["a_release_height_m"] is None:
+        return "never let go of A"
+    if row["a_release_height_m"] >= HIGH or row["a_upright"] < UPRIGHT:
+        return "dropped A from above 1 cm or tipped it"
+    if row["a_end_distance_m"] > NEAR:
+        return "A set down too far from B"
+    if row["hand_to_c_min_m"] > 0.03:
+        return "A beside B, the hand never at C"
+    return "C grasped or touched, not set on the pair"
+
+
+def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict:
+    """One rollout as the evaluate stage runs it, followed cube by cube (poses world, [m])."""
+    env.reset(seed=seed, variant=variant)
+    policy.reset(seed)
+    b0 = env.object_poses()["cubeB"][:2, 3].copy()
+    first, held_a, release, closest_c, success, steps = None, False, None, np.inf, False, 0
+    while steps < horizon:
+        steps += 1
+        env.step(policy.act(policy_observation(env, objects)))
+        signals, poses = env.subtask_signals(), env.object_poses()
+        for cube in ("cubeA", "cubeC"):
+            if first is None and signals[f"grasp_{cube}"]:
+                first = cube
+        if signals["grasp_cubeA"]:
+            held_a = True
+        elif held_a and release is None:
+            release = poses["cubeA"][:3, 3] - poses["cubeB"][:3, 3]
+        hand = env.eef_pose()[:3, 3]
+        closest_c = min(closest_c, float(np.linalg.norm(hand - poses["cubeC"][:3, 3])))
+        if env.is_success():
+            success = True
+            break
+    poses = env.object_poses()
+    ab = poses["cubeA"][:3, 3] - poses["cubeB"][:3, 3]
+    height, distance = (None, None) if release is None else (release[2], np.hypot(*release[:2]))
+    return {
+        "seed": seed,
+        "success": success,
+        "steps": steps,
+        "first_grasped": first,
+        "a_release_height_m": None if height is None else round(float(height), 4),
+        "a_release_distance_m": None if distance is None else round(float(distance), 4),
+        "a_end_distance_m": round(float(np.hypot(*ab[:2])), 4),
+        "a_upright": round(float(poses["cubeA"][2, 2]), 3),
+        "b_pushed_m": round(float(np.linalg.norm(poses["cubeB"][:2, 3] - b0)), 4),
+        "hand_to_c_min_m": round(closest_c, 4),
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--policy", required=True, nargs="+", help="checkpoints of the train stage")
+    p.add_argument("--variant", default="D0")
+    p.add_argument("--episodes", type=int, default=50)
+    p.add_argument("--component", default="drawn", choices=COMPONENTS)
+    p.add_argument("--out", type=Path, help="a JSON file with every episode")
+    args = p.parse_args()
+    if args.out is not None and args.out.exists():  # before any work; nothing is replaced
+        p.error(f"--out {args.out}: already exists; remove it or name another file")
+    spec = envs.task_spec("maniskill", TASK)
+    envs.check_variant(spec, args.variant)
+    policies = {path: load_rollout_policy(path, args.component) for path in args.policy}
+    env = envs.make_env("maniskill", TASK)
+    seed0 = load_params().evaluate.seed
+    seeds = [evaluation_seed(seed0, args.variant, i) for i in range(args.episodes)]
+    rows = []
+    for path, policy in policies.items():
+        for seed in seeds:
+            row = {"policy": path} | episode(
+                env, policy, seed, args.variant, spec.horizon, spec.objects
+            )
+            rows.append(row)
+            print(row, flush=True)
+    env.close()
+    failed = [r for r in rows if not r["success"]]
+    print(f"{len(rows) - len(failed)} of {len(rows)} succeeded; failures:")
+    for kind, n in Counter(failure_kind(r) for r in failed).most_common():
+        print(f"  {n:4d}  {kind}")
+    for name, group in (("successes", [r for r in rows if r["success"]]), ("failures", failed)):
+        heights = [r["a_release_height_m"] for r in group if r["a_release_height_m"] is not None]
+        if heights:
+            q = np.quantile(heights, [0.5, 0.9]) * 1000
+            print(
+                f"A let go in {name}: median {q[0]:.1f} mm above B's height, 90 % below "
+                f"{q[1]:.1f} mm; {sum(h >= HIGH for h in heights)} of {len(heights)} from "
+                f"{HIGH * 1000:.0f} mm or more; {sum(r['a_upright'] < UPRIGHT for r in group)} "
+                "end with A tipped"
+            )
+    if args.out is not None:
+        args.out.write_text(json.dumps({"episodes": rows}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
