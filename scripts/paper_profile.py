@@ -193,7 +193,7 @@ def collect(args: argparse.Namespace) -> None:
     bundles: list[dict] = [{}]
     for p in share:  # as many checkpoints per file as --file-mb allows, by their saved size
         key = str(p.relative_to(trained))
-        state = {k: v.to(dtype) for k, v in torch.load(p, weights_only=True).items()}
+        state = {name: v.to(dtype) for name, v in torch.load(p, weights_only=True).items()}
         if _saved_size({key: state}) > limit:
             raise SystemExit(f"{p}: over --file-mb {args.file_mb} as {args.dtype}")
         if _saved_size(bundles[-1] | {key: state}) > limit:
