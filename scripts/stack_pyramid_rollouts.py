@@ -22,6 +22,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import torch
 
 import envs
 from envs.maniskill.tasks.stack_pyramid import NEAR
@@ -103,6 +104,7 @@ def main() -> None:
         p.error(f"--out {args.out}: already exists; remove it or name another file")
     spec = envs.task_spec("maniskill", TASK)
     envs.check_variant(spec, args.variant)
+    torch.set_num_threads(1)  # as the evaluate stage's workers: the same sums, the same rollouts
     policies = {path: load_rollout_policy(path, args.component) for path in args.policy}
     env = envs.make_env("maniskill", TASK)
     seed0 = load_params().evaluate.seed
