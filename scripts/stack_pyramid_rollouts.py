@@ -5,8 +5,9 @@ lands beside cube B, whether the hand goes on to cube C, and how the scene ends.
         --policy data/policies/stack_pyramid_D0_paper_h100/seed0/epoch00300.pt [more .pt] \\
         [--episodes 50] [--variant D0] [--component most_likely] [--out rollouts.json]
 
-Rolls each checkpoint out on the evaluate stage's first scenes of the variant (one process,
-the stage's seeds: the same rollouts), up to the task's horizon, and prints per episode:
+Rolls each checkpoint out on the evaluate stage's first scenes of the variant as the stage
+does (its seeds, blocks and torch threads, in one process: the same rollouts), up to the
+task's horizon, and prints per episode:
 success, steps, the cube grasped first, A's centre relative to B's when A left the grasp
 (height above B's and distance in the table's plane [m]; the demos set A down 3 mm above the
 table, its centre 4.3 cm from B's), and at the end: A upright or tipped, how far B was
@@ -26,7 +27,7 @@ import torch
 
 import envs
 from envs.maniskill.tasks.stack_pyramid import NEAR
-from mimicgen_pipe.evaluation import evaluation_seed, policy_observation
+from mimicgen_pipe.evaluation import EPISODES_PER_BLOCK, evaluation_seed, policy_observation
 from mimicgen_pipe.params import load_params
 from mimicgen_pipe.policy import COMPONENTS
 from mimicgen_pipe.training import load_rollout_policy
@@ -104,14 +105,16 @@ def main() -> None:
         p.error(f"--out {args.out}: already exists; remove it or name another file")
     spec = envs.task_spec("maniskill", TASK)
     envs.check_variant(spec, args.variant)
-    torch.set_num_threads(1)  # as the evaluate stage's workers: the same sums, the same rollouts
+    torch.set_num_threads(1)  # as the evaluate stage's workers: the same sums
     policies = {path: load_rollout_policy(path, args.component) for path in args.policy}
     env = envs.make_env("maniskill", TASK)
     seed0 = load_params().evaluate.seed
     seeds = [evaluation_seed(seed0, args.variant, i) for i in range(args.episodes)]
     rows = []
     for path, policy in policies.items():
-        for seed in seeds:
+        for i, seed in enumerate(seeds):
+            if i % EPISODES_PER_BLOCK == 0:  # the stage's blocks: a rollout depends on the
+                env.rebuild()  # scene's history since its last rebuild
             row = {"policy": path} | episode(
                 env, policy, seed, args.variant, spec.horizon, spec.objects
             )
