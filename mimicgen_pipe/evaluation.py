@@ -163,6 +163,7 @@ def rollout(
     cameras: Any = None,
     term_signals: Sequence[str] = (),
     arms: Sequence[str] = (ARM,),
+    on_step: Callable[[Env], None] | None = None,
 ) -> Rollout:
     """One episode: reset the scene from ``seed``, act until the task succeeds or ``horizon``
     steps have run. ``cameras``: for a policy that reads images, a renderer of the env's
@@ -170,9 +171,13 @@ def rollout(
     ``<camera>_image``, the store's ``obs/<camera>_image`` (the same picture of the same
     state as the observe stage takes). ``term_signals``: the term signals of the subtasks
     but the last, in order, whose ends the rollout records in its ``subtask_ends``. ``arms``:
-    the task's arms (spec.arms), whose end effectors the observation reads."""
+    the task's arms (spec.arms), whose end effectors the observation reads. ``on_step``: a
+    reader of the env, called after the reset and after every step (a diagnosis that follows
+    the scene through the stage's own rollout)."""
     env.reset(seed=seed, variant=variant)
     policy.reset(seed)
+    if on_step is not None:
+        on_step(env)
     ends: list[int] = []
     before = env.subtask_signals() if term_signals else {}
     for t in range(horizon):
@@ -185,6 +190,8 @@ def rollout(
             if held[name] and not before[name]:
                 ends.append(t + 1)
             before = held
+        if on_step is not None:
+            on_step(env)
         if env.is_success():
             return Rollout(seed, True, t + 1, _padded(ends, term_signals))
     return Rollout(seed, False, horizon, _padded(ends, term_signals))

@@ -26,7 +26,7 @@ import numpy as np
 
 import envs
 from envs.maniskill.tasks import peg_insertion
-from mimicgen_pipe.evaluation import evaluation_seed, policy_observation
+from mimicgen_pipe.evaluation import evaluation_seed, rollout
 from mimicgen_pipe.generation import Env
 from mimicgen_pipe.params import load_params
 from mimicgen_pipe.policy import COMPONENTS
@@ -74,21 +74,16 @@ def main() -> None:
     rows = []
     for i in range(args.episodes):
         seed = evaluation_seed(seed0, args.variant, i)
-        env.reset(seed=seed, variant=args.variant)
-        policy.reset(seed)
-        depth, success = [], False
-        for _ in range(spec.horizon):
-            env.step(policy.act(policy_observation(env, spec.objects)))
-            x, off_axis = head_in_hole(env)
-            depth.append(x)
-            if env.is_success():
-                success = True
-                break
+        heads: list[tuple[float, float]] = []  # after the reset, then after every step
+        r = rollout(env, policy, seed, args.variant, spec.horizon, spec.objects,
+                    on_step=lambda e, heads=heads: heads.append(head_in_hole(e)))  # fmt: skip
+        depth = [x for x, _ in heads[1:]]
+        off_axis = heads[-1][1]
         rows.append(
             {
                 "seed": seed,
-                "success": success,
-                "steps": len(depth),
+                "success": r.success,
+                "steps": r.steps,
                 "grasped": bool(env.subtask_signals()["grasp_peg"]),
                 "depth_m": round(depth[-1], 4),
                 "off_axis_m": round(off_axis, 4),

@@ -27,7 +27,7 @@ import torch
 
 import envs
 from envs.maniskill.tasks.stack_pyramid import NEAR
-from mimicgen_pipe.evaluation import EPISODES_PER_BLOCK, evaluation_seed, policy_observation
+from mimicgen_pipe.evaluation import EPISODES_PER_BLOCK, evaluation_seed, rollout
 from mimicgen_pipe.params import load_params
 from mimicgen_pipe.policy import COMPONENTS
 from mimicgen_pipe.training import load_rollout_policy
@@ -54,42 +54,53 @@ def failure_kind(row: dict) -> str:
     return "C grasped or touched, not set on the pair"
 
 
-def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict:
-    """One rollout as the evaluate stage runs it, followed cube by cube (poses world, [m])."""
-    env.reset(seed=seed, variant=variant)
-    policy.reset(seed)
-    b0 = env.object_poses()["cubeB"][:2, 3].copy()
-    first, held_a, release, closest_c, success, steps = None, False, None, np.inf, False, 0
-    while steps < horizon:
-        steps += 1
-        env.step(policy.act(policy_observation(env, objects)))
-        signals, poses = env.subtask_signals(), env.object_poses()
+class _Follow:
+    """Reads the scene after the reset and after every step of a rollout (poses world, [m])."""
+
+    def __init__(self) -> None:
+        self.b0: np.ndarray | None = None
+        self.first: str | None = None
+        self.held_a = False
+        self.release: np.ndarray | None = None
+        self.closest_c = np.inf
+
+    def __call__(self, env) -> None:
+        poses = env.object_poses()
+        if self.b0 is None:  # the reset: where B starts
+            self.b0 = poses["cubeB"][:2, 3].copy()
+            return
+        signals = env.subtask_signals()
         for cube in ("cubeA", "cubeC"):
-            if first is None and signals[f"grasp_{cube}"]:
-                first = cube
+            if self.first is None and signals[f"grasp_{cube}"]:
+                self.first = cube
         if signals["grasp_cubeA"]:
-            held_a = True
-        elif held_a and release is None:
-            release = poses["cubeA"][:3, 3] - poses["cubeB"][:3, 3]
+            self.held_a = True
+        elif self.held_a and self.release is None:
+            self.release = poses["cubeA"][:3, 3] - poses["cubeB"][:3, 3]
         hand = env.eef_pose()[:3, 3]
-        closest_c = min(closest_c, float(np.linalg.norm(hand - poses["cubeC"][:3, 3])))
-        if env.is_success():
-            success = True
-            break
+        self.closest_c = min(self.closest_c, float(np.linalg.norm(hand - poses["cubeC"][:3, 3])))
+
+
+def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict:
+    """One rollout as the evaluate stage runs it (:func:`mimicgen_pipe.evaluation.rollout`),
+    followed cube by cube (poses world, [m])."""
+    follow = _Follow()
+    r = rollout(env, policy, seed, variant, horizon, objects, on_step=follow)
     poses = env.object_poses()
     ab = poses["cubeA"][:3, 3] - poses["cubeB"][:3, 3]
+    release = follow.release
     height, distance = (None, None) if release is None else (release[2], np.hypot(*release[:2]))
     return {
         "seed": seed,
-        "success": success,
-        "steps": steps,
-        "first_grasped": first,
+        "success": r.success,
+        "steps": r.steps,
+        "first_grasped": follow.first,
         "a_release_height_m": None if height is None else round(float(height), 4),
         "a_release_distance_m": None if distance is None else round(float(distance), 4),
         "a_end_distance_m": round(float(np.hypot(*ab[:2])), 4),
         "a_upright": round(float(poses["cubeA"][2, 2]), 3),
-        "b_pushed_m": round(float(np.linalg.norm(poses["cubeB"][:2, 3] - b0)), 4),
-        "hand_to_c_min_m": round(closest_c, 4),
+        "b_pushed_m": round(float(np.linalg.norm(poses["cubeB"][:2, 3] - follow.b0)), 4),
+        "hand_to_c_min_m": round(follow.closest_c, 4),
     }
 
 
