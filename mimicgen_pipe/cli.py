@@ -12,9 +12,14 @@ import importlib
 import signal
 import sys
 
-from mimicgen_pipe import outputs
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.interrupts import Interrupted, as_exceptions
+from mimicgen_pipe import arithmetic
+
+# before anything imports numpy or torch (outputs does): the same bytes on any x86-64 CPU type
+UNPINNED = arithmetic.pin()
+
+from mimicgen_pipe import outputs  # noqa: E402
+from mimicgen_pipe.errors import InputError  # noqa: E402
+from mimicgen_pipe.interrupts import Interrupted, as_exceptions  # noqa: E402
 
 STAGES = {
     "source": "record source demos on D0 (motion planners or a trajectory file)",
@@ -34,6 +39,8 @@ STAGES = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    if UNPINNED is not None:
+        print(f"mimicgen-pipe: warning: {UNPINNED}", file=sys.stderr)
     argv = sys.argv[1:] if argv is None else list(argv)
     stage = next((a for a in argv if a in STAGES), None)
     prog = f"mimicgen-pipe {stage}" if stage else "mimicgen-pipe"

@@ -4,7 +4,8 @@ runs from, so that editing a file re-runs the stages that import it and no other
     python scripts/dvc_deps.py --check   # exit 1 and list the differences (tests run this)
     python scripts/dvc_deps.py --write   # rewrite the code deps in place
 
-A stage ``mimicgen-pipe <stage> ...`` runs from ``stages/<stage>.py``, every project module
+A stage ``mimicgen-pipe <stage> ...`` runs from ``stages/<stage>.py``, the CLI's arithmetic
+pins (``mimicgen_pipe/arithmetic.py``: they decide the outputs' last bits), every project module
 it imports (transitively, imports inside functions included), and every module of a
 registry package it loads from by a name known at run time (``registry.load("<package>",
 name)``; a literal name: that module only; see
@@ -100,7 +101,8 @@ def closure(stage_module: str, backend: str, tasks: Iterable[str] = ()) -> set[P
     package under envs/. The task files themselves are not included."""
     backends = {p.parent.name for p in (REPO / "envs").glob("*/__init__.py")}
     roots = [f"envs.{backend}.tasks.{t}" for t in tasks]
-    todo = [stage_module, "stages", *roots]
+    # the CLI pins the numeric libraries' code paths before any stage runs (cli.py)
+    todo = [stage_module, "stages", "mimicgen_pipe.arithmetic", *roots]
     seen: set[str] = set()
     while todo:
         name = todo.pop()

@@ -10,6 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from mimicgen_pipe import arithmetic
+
+arithmetic.pin()  # as the CLI does, before a test imports numpy or torch
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
 REPO = Path(__file__).resolve().parents[1]
 

@@ -28,6 +28,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
+from mimicgen_pipe import arithmetic
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.interrupts import deferred
 
@@ -206,7 +207,11 @@ def _connect(workers: int, address: str | None) -> bool:
         kwargs["address"] = address
         # the cluster's workers run the driver's own code of this package and the back ends
         # (Ray ships it to every node), so that an older install there cannot change a block
-        kwargs["runtime_env"] = {"py_modules": [_package_dir(p) for p in ("mimicgen_pipe", "envs")]}
+        # and with the driver's arithmetic (mimicgen_pipe.arithmetic), not the node's own
+        kwargs["runtime_env"] = {
+            "py_modules": [_package_dir(p) for p in ("mimicgen_pipe", "envs")],
+            "env_vars": arithmetic.switches(),
+        }
     # ray.init replaces the SIGTERM handler with one that exits at once, which during its
     # start-up would orphan the services it has started; the stage's handler stays, holding
     # the signal back (the caller defers) until Ray is up and can be shut down in order
