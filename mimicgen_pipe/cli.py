@@ -18,7 +18,7 @@ from mimicgen_pipe import arithmetic
 UNPINNED = arithmetic.pin()
 
 from mimicgen_pipe import outputs  # noqa: E402
-from mimicgen_pipe.errors import InputError  # noqa: E402
+from mimicgen_pipe.errors import InputError, one_line  # noqa: E402
 from mimicgen_pipe.interrupts import Interrupted, as_exceptions  # noqa: E402
 
 STAGES = {
@@ -91,7 +91,7 @@ def _run_stage(argv: list[str]) -> int:
         with outputs.claims():
             modules[args.stage].run(args)
     except InputError as exc:
-        print(f"mimicgen-pipe {args.stage}: error: {exc}", file=sys.stderr)
+        print(one_line(f"mimicgen-pipe {args.stage}: error: {exc}"), file=sys.stderr)
         return 2
     return 0
 

@@ -130,6 +130,30 @@ def test_a_server_that_fails_ends_or_hangs_is_one_error_not_a_hang(tmp_path):
         ExternalPolicy([str(tmp_path / "no_python")], dict, "x:y")
 
 
+def test_a_server_that_writes_garbage_is_one_error_before_any_allocation(tmp_path):
+    garbage = "import sys, time; sys.stdout.buffer.write(b'\\xff' * 8 + b'junk'); "
+    garbage += "sys.stdout.flush(); time.sleep(60)"
+    t0 = time.monotonic()
+    with pytest.raises(InputError, match=r"sent an unreadable message while loading the "
+                       r"policy \(a message of 18446744073709551615 bytes announced, over "
+                       r"the 256 MiB limit"):  # fmt: skip
+        ExternalPolicy([sys.executable, "-c", garbage], dict, "x:garbage")
+    assert time.monotonic() - t0 < 30  # at once, not at the hello's time limit
+    # the server's side: a request whose length is garbage ends it with one error message
+    out = io.BytesIO()
+    status = _serve.serve(lambda: _StandInPolicy(), "x", io.BytesIO(b"\xff" * 8), out)
+    assert status == 1
+    answers = io.BytesIO(out.getvalue())
+    assert _serve.read_message(answers)[0]["op"] == "hello"
+    header, _ = _serve.read_message(answers)
+    assert header["op"] == "error" and "over the 256 MiB limit" in header["message"]
+
+
+class _StandInPolicy:
+    observations: dict = {}
+    action_dim, meta = 7, {}
+
+
 def spec(fmt: str = "robomimic") -> PolicySpec:
     return PolicySpec(fmt, "/p", sys.executable, ("eef_pos", "gripper_qpos", "cubeA_pos"), "")
 
@@ -439,3 +463,74 @@ def test_lerobot_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_pa
                for r in rows)  # fmt: skip
     config = json.loads((model / "config.json").read_text())
     assert set(config["input_features"]) == {"observation.state", "observation.environment_state"}
+
+
+# A checkpoint with no pickle payload at all (it loads with weights_only=True) whose config
+# names an image encoder by a string robomimic's VisualCore would eval().
+HOSTILE_CHECKPOINT = """
+import json, sys, torch
+from robomimic.config import config_factory
+config = config_factory("bc")
+with config.values_unlocked():
+    config.observation.modalities.obs.low_dim = ["eef_pos"]
+    config.observation.modalities.obs.rgb = ["agentview_image"]
+    config.observation.encoder.rgb.core_kwargs.backbone_class = (
+        f"(__import__('os').system('touch {sys.argv[2]}'), ResNet18Conv)[1]")
+torch.save({"algo_name": "bc", "config": config.dump(), "model": {"nets": {}},
+            "env_metadata": {}, "shape_metadata": {
+                "ac_dim": 7, "all_obs_keys": ["eef_pos", "agentview_image"], "use_images": True,
+                "all_shapes": {"eef_pos": [3], "agentview_image": [3, 84, 84]}}}, sys.argv[1])
+"""
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("core_kwargs.backbone_class", "ResNet18Conv"), ("core_kwargs.pool_class", "SpatialSoftmax"),
+     ("core_class", "VisualCore"), ("obs_randomizer_class", "CropRandomizer")],
+)  # fmt: skip
+def test_robomimic_class_names_outside_the_allowlist_are_refused_naming_the_key(key, value):
+    from mimicgen_pipe.external import robomimic
+
+    def config(name: object) -> dict:
+        rgb: dict = {"core_class": "VisualCore", "core_kwargs": {}}
+        *parents, last = key.split(".")
+        node = rgb
+        for part in parents:
+            node = node[part]
+        node[last] = name
+        return {"config": json.dumps({"observation": {"encoder": {"rgb": rgb}}})}
+
+    robomimic.checkpoint_config(config(value))  # robomimic's own class: accepted
+    robomimic.checkpoint_config(config(None))
+    for bad in (f"__import__('os').system('true') or {value}", f" {value}", ["x"]):
+        with pytest.raises(ValueError, match=rf"config\.observation\.encoder\.rgb\.{key}: "):
+            robomimic.checkpoint_config(config(bad))
+    with pytest.raises(ValueError, match=r"config\.x\.0\.my_class: 'Mine' is not a class"):
+        robomimic.checkpoint_config({"config": json.dumps({"x": [{"my_class": "Mine"}]})})
+    with pytest.raises(ValueError, match="not a robomimic config JSON string"):
+        robomimic.checkpoint_config({"config": "{"})
+
+
+@pytest.mark.skipif(
+    not external.DEFAULT_PYTHON.exists(),
+    reason="the learners' check venv .venv-learners is missing (made by scripts/setup.sh)",
+)
+def test_a_checkpoint_whose_config_would_run_code_is_refused_and_runs_none(tmp_path):
+    import subprocess
+
+    checkpoint, marker = tmp_path / "model.pth", tmp_path / "marker"
+    made = subprocess.run(
+        [str(external.DEFAULT_PYTHON), "-c", HOSTILE_CHECKPOINT, str(checkpoint), str(marker)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert made.returncode == 0, made.stderr[-2000:]
+    (tmp_path / "params.yaml").write_text(SMALL_PARAMS)
+    res = cli("evaluate_external", "--policy", f"robomimic:{checkpoint}", "--data", "D0",
+              "--variant", "D0", "--episodes", "1", "--metrics", str(tmp_path / "m.json"),
+              cwd=tmp_path, check=False)  # fmt: skip
+    assert not marker.exists()
+    assert res.returncode == 2, res.stderr[-2000:]
+    (line,) = res.stderr.strip().splitlines()
+    assert "config.observation.encoder.rgb.core_kwargs.backbone_class" in line
+    assert "not a class this server builds" in line and len(line) < 1000
+    assert not (tmp_path / "m.json").exists()

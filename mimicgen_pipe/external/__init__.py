@@ -44,7 +44,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.external._serve import LENGTH, PROTOCOL, decode, encode
+from mimicgen_pipe.external._serve import LENGTH, PROTOCOL, decode, encode, message_size
 from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.taskspec import ARM_ACTION_DIM
 
@@ -218,13 +218,14 @@ class ExternalPolicy:
 
     def _receive(self, when: str, seconds: float) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         deadline = time.monotonic() + seconds
-        (size,) = LENGTH.unpack(self._read(LENGTH.size, deadline, when, seconds))
+        head = self._read(LENGTH.size, deadline, when, seconds)
         try:
+            size = message_size(head)
             header, arrays = decode(self._read(size, deadline, when, seconds))
         except ValueError as exc:
             self._fail(f"sent an unreadable message {when} ({exc})")
-        if header["op"] == "error":
-            self._fail(f"failed {when}: {header.get('message')}")
+        if header["op"] == "error":  # its own word: its stderr's traceback adds nothing
+            self._fail(f"failed {when}: {header.get('message')}", stderr=False)
         return header, arrays
 
     def _read(self, n: int, deadline: float, when: str, seconds: float) -> bytes:
@@ -252,14 +253,15 @@ class ExternalPolicy:
                 except BlockingIOError:
                     continue
 
-    def _fail(self, what: str) -> NoReturn:
-        """Stop the server; raise InputError with its exit status and last stderr lines."""
+    def _fail(self, what: str, stderr: bool = True) -> NoReturn:
+        """Stop the server; raise InputError with its exit status and (``stderr``) the last
+        lines of its stderr."""
         if self._proc.poll() is None:
             self._proc.kill()
         status = self._proc.wait()
         self._stderr.seek(0)
         lines = self._stderr.read().decode(errors="replace").strip().splitlines()
-        tail = " | ".join(lines[-STDERR_LINES:])
+        tail = " | ".join(lines[-STDERR_LINES:]) if stderr else ""
         self._release()
         raise InputError(
             f"{self.name}: its policy server {what} (exit status {status})"

@@ -49,6 +49,9 @@ import numpy as np  # noqa: E402
 PROTOCOL = 1
 LENGTH = struct.Struct("<Q")
 HEADER = "header"
+# a message is one step's observation or action: far below this (two 84x84 images: 42 kB);
+# a larger length is garbage on the stream, refused before anything is allocated for it
+MAX_MESSAGE = 256 << 20
 
 
 def encode(header: dict[str, Any], arrays: dict[str, np.ndarray] | None = None) -> bytes:
@@ -70,6 +73,17 @@ def decode(payload: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     return header, arrays
 
 
+def message_size(head: bytes) -> int:
+    """The payload size an 8-byte length announces; ValueError past :data:`MAX_MESSAGE`."""
+    (size,) = LENGTH.unpack(head)
+    if size > MAX_MESSAGE:
+        raise ValueError(
+            f"a message of {size} bytes announced, over the {MAX_MESSAGE >> 20} MiB limit: "
+            "not this protocol's stream"
+        )
+    return size
+
+
 def read_message(stream: BinaryIO) -> tuple[dict[str, Any], dict[str, np.ndarray]] | None:
     """The next message of a blocking stream, None at its end."""
     head = stream.read(LENGTH.size)
@@ -77,7 +91,7 @@ def read_message(stream: BinaryIO) -> tuple[dict[str, Any], dict[str, np.ndarray
         return None
     if len(head) < LENGTH.size:
         raise EOFError("input ended inside a message's length")
-    (size,) = LENGTH.unpack(head)
+    size = message_size(head)
     payload = stream.read(size)
     if len(payload) < size:
         raise EOFError(f"input ended inside a message ({len(payload)} of {size} bytes)")

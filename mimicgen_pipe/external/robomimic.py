@@ -9,6 +9,7 @@ robomimic's own ``policy_from_checkpoint``: the policy acts as in robomimic's ro
 
 from __future__ import annotations
 
+import json
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,15 @@ from typing import Any
 import numpy as np
 
 DESCRIPTION = "robomimic checkpoint .pth file"
+# robomimic builds its encoders from class names in the checkpoint's config, some by eval()
+# (VisualCore's backbone_class and pool_class): a name is accepted only where it is one of
+# robomimic's own classes, so that no string of a checkpoint reaches eval
+CLASSES = {
+    "core_class": ("VisualCore", "ScanCore"),
+    "backbone_class": ("ResNet18Conv", "R3MConv", "MVPConv", "ShallowConv"),
+    "pool_class": ("SpatialSoftmax", "SpatialMeanPool"),
+    "obs_randomizer_class": ("CropRandomizer", "ColorRandomizer", "GaussianNoiseRandomizer"),
+}
 
 
 def why_not(path: Path) -> str | None:
@@ -28,6 +38,38 @@ def why_not(path: Path) -> str | None:
         if not any(n.endswith("/data.pkl") for n in z.namelist()):
             return f"{path}: a zip archive without data.pkl, not a checkpoint torch saved"
     return None
+
+
+def check_classes(config: object, where: str = "config") -> None:
+    """ValueError naming the key, for a ``*_class`` entry anywhere in a robomimic config
+    (the checkpoint's parsed ``config``) that is not null or one of :data:`CLASSES`' names
+    for that key."""
+    if isinstance(config, dict):
+        items = list(config.items())
+    else:
+        items = list(enumerate(config)) if isinstance(config, list) else []
+    for key, value in items:
+        at = f"{where}.{key}"
+        if isinstance(key, str) and key.endswith("_class") and value is not None:
+            allowed = CLASSES.get(key)
+            if allowed is None or value not in allowed:
+                shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+                expected = f"one of {', '.join(allowed)} or null" if allowed else "null"
+                raise ValueError(f"{at}: {shown} is not a class this server builds ({expected})")
+        check_classes(value, at)
+
+
+def checkpoint_config(ckpt: dict) -> dict:
+    """The checkpoint's robomimic config (a JSON object in ``config``), its class names
+    checked (:func:`check_classes`); ValueError naming the key otherwise."""
+    try:
+        config = json.loads(ckpt["config"])
+    except (KeyError, TypeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"config: not a robomimic config JSON string ({exc})") from None
+    if not isinstance(config, dict):
+        raise ValueError("config: not a JSON object")
+    check_classes(config)
+    return config
 
 
 def observation(obs: dict[str, np.ndarray], obs_keys: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -52,6 +94,7 @@ class RobomimicPolicy:
         # one thread, like the evaluator's workers: its env steps in the other process
         torch.set_num_threads(1)
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        checkpoint_config(ckpt)  # before robomimic builds anything from it
         self.policy, _ = file_utils.policy_from_checkpoint(
             device=torch.device("cpu"), ckpt_dict=ckpt
         )
