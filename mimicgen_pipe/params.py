@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import fnmatch
+import reprlib
 import types
 import typing
 from collections.abc import Callable
@@ -521,9 +522,14 @@ def _build(cls: type, raw: Any, where: str, path: Path) -> Any:
     return cls(**kwargs)
 
 
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxstring, _REPR.maxother = 3, 60, 60
+
+
 def _short(value: Any, limit: int = 80) -> str:
-    """repr of a value from a user's file, cut to ``limit`` characters for a one-line error."""
-    text = repr(value)
+    """repr of a value from a user's file, cut to ``limit`` characters for a one-line error;
+    a few entries per level and a few levels only, so that it never walks a large value."""
+    text = _REPR.repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

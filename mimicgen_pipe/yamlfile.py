@@ -12,6 +12,14 @@ import yaml
 from mimicgen_pipe.errors import InputError
 
 _MERGE_TAG = "tag:yaml.org,2002:merge"
+# what a user's YAML file may hold, counted as its nodes with every alias expanded: a params
+# file has a few hundred; aliases nested ten deep expand a 1 kB file to billions, which any
+# walk over the loaded values (a check, an error message) would never finish
+MAX_NODES = 100_000
+
+
+class ExpansionError(yaml.YAMLError):
+    """A document whose aliases expand it past :data:`MAX_NODES` nodes."""
 
 
 class DuplicateKeyError(yaml.constructor.ConstructorError):
@@ -22,6 +30,15 @@ class UniqueKeyLoader(yaml.SafeLoader):
     """yaml.SafeLoader that refuses a mapping with the same key twice. Keys are compared as
     the values they load to, so ``1`` and ``1.0`` (one key to Python) count as the same key.
     Keys brought in by a ``<<`` merge may still be overridden, as YAML intends."""
+
+    def get_single_node(self) -> yaml.Node | None:
+        node = super().get_single_node()
+        if node is not None and (n := _expanded_nodes(node, {})) > MAX_NODES:
+            raise ExpansionError(
+                f"its aliases expand it to {n} nodes, more than the {MAX_NODES} a file here "
+                "may hold; write the values out, or use fewer nested aliases"
+            )
+        return node
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
         if isinstance(node, yaml.MappingNode):
@@ -42,6 +59,21 @@ class UniqueKeyLoader(yaml.SafeLoader):
                         None, None, f"{why}; give each key once", key_node.start_mark
                     )
         return super().construct_mapping(node, deep=deep)
+
+
+def _expanded_nodes(node: yaml.Node, memo: dict[int, int]) -> int:
+    """The number of nodes under ``node``, an alias counted as a copy of what it names
+    (each node's count computed once: linear in the file, not in its expansion)."""
+    if id(node) in memo:
+        return memo[id(node)]
+    memo[id(node)] = 1  # a node that contains itself through an alias counts once there
+    children: list[yaml.Node] = []
+    if isinstance(node, yaml.SequenceNode):
+        children = list(node.value)
+    elif isinstance(node, yaml.MappingNode):
+        children = [n for pair in node.value for n in pair]
+    memo[id(node)] = 1 + sum(_expanded_nodes(c, memo) for c in children)
+    return memo[id(node)]
 
 
 def _one_line(exc: yaml.YAMLError) -> str:

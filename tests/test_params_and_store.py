@@ -162,6 +162,32 @@ def test_odd_params_files_are_one_line_naming_the_file(tmp_path, content, needle
     assert str(exc.value).startswith(str(path))
 
 
+def alias_bomb(levels: int) -> str:
+    """A params file of ~0.5 kB whose nested aliases, under a known key, expand to 10**levels
+    values."""
+    anchors = ["  - &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    anchors += [f"  - &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, levels)]
+    return "task: stack_cube\ngenerate:\n  num_demos:\n" + "\n".join(anchors) + "\n"
+
+
+def test_yaml_aliases_that_expand_a_file_past_its_limit_are_one_error_at_once(tmp_path):
+    import time
+
+    path = tmp_path / "params.yaml"
+    path.write_text(alias_bomb(10))
+    assert len(path.read_bytes()) < 1024
+    t0 = time.monotonic()
+    with pytest.raises(InputError, match=r"params.yaml: not valid YAML: its aliases expand it "
+                       r"to 12345679017 nodes, more than the 100000"):  # fmt: skip
+        load_params(path)
+    assert time.monotonic() - t0 < 5
+    # under the limit, a wrong value's message shows a few entries of it, not all of them
+    path.write_text(alias_bomb(4))
+    with pytest.raises(InputError, match=r"generate.num_demos: expected an int") as err:
+        load_params(path)
+    assert len(str(err.value)) < 300
+
+
 def test_store_round_trip_and_atomic_replace(tmp_path):
     rng = np.random.default_rng(0)
     eps = []
