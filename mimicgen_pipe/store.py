@@ -15,6 +15,8 @@ zeros.
 from __future__ import annotations
 
 import contextlib
+import fnmatch
+import json
 import os
 import sys
 from collections.abc import Iterator, Mapping, Sequence
@@ -36,6 +38,33 @@ SCHEMA_VERSION = 2  # 2: crc32c on every chunk, every chunk written, attrs.kind
 STORE_KINDS = ("source", "parsed", "generated", "failed")
 # zstd as zarr's default, then a checksum of the compressed bytes
 _CODECS = (ZstdCodec(level=0, checksum=False), Crc32cCodec())
+
+
+# What each array holds, as numpy dtype kinds (f float, i/u integer, b bool), checked on
+# opening from the arrays' metadata before anything is read: a zarr.json relabelled with
+# another dtype would otherwise read its bytes as other numbers. Keys not listed (a task's
+# own extras) are not checked here.
+DTYPE_KINDS = {
+    "data/actions": "f",
+    "data/eef_pose*": "f",
+    "data/target_pose*": "f",
+    "data/object_poses/*": "f",
+    "data/gripper*": "f",
+    "data/env_state": "f",
+    "data/obs/*_image": "u",
+    "data/obs/*": "f",
+    "data/subtask_signals/*": "b",
+    "meta/episode_ends": "i",
+    "meta/episodes/seed": "iu",
+    "meta/episodes/success": "b",
+    "meta/episodes/ik_failure": "b",
+    "meta/episodes/source_demo": "iu",
+    "meta/episodes/failure_reason": "i",
+    "meta/episodes/subtask_term_index": "i",
+    "meta/episodes/initial_object_poses": "f",
+    "meta/episodes/initial_state": "f",
+}
+_KIND_NAMES = {"f": "floating-point", "i": "integer", "iu": "integer", "u": "uint8", "b": "bool"}
 
 
 def image_key(camera: str) -> str:
@@ -242,19 +271,68 @@ def store_writer(
 def _read_group(path: Path, group: zarr.Group, prefix: str) -> dict[str, np.ndarray]:
     """Every array under ``group``, keyed by its path in the store; a missing chunk or a
     chunk whose checksum does not match is an InputError naming the array."""
-    return {key: _read_array(path, key, member) for key, member in _members(group, prefix).items()}
+    members = _members(path, group, prefix)
+    return {key: _read_array(path, key, member) for key, member in members.items()}
 
 
-def _members(group: zarr.Group, prefix: str) -> dict[str, zarr.Array]:
-    """Every array under ``group``, unread, keyed by its path in the store."""
+def _members(path: Path, group: zarr.Group, prefix: str) -> dict[str, zarr.Array]:
+    """Every array under ``group``, unread, keyed by its path in the store, its dtype
+    checked (:data:`DTYPE_KINDS`); an InputError naming the zarr.json zarr cannot read."""
+    try:
+        out = _listed(group, prefix)
+    except (KeyError, TypeError, ValueError) as exc:
+        bad = _bad_metadata(path)
+        raise bad or InputError(
+            f"{path}: damaged store metadata ({type(exc).__name__}: {str(exc)[:80]}); re-run "
+            "the stage that wrote it"
+        ) from exc
+    for key, member in out.items():
+        _check_dtype(path, key, member.dtype)
+    return out
+
+
+def _listed(group: zarr.Group, prefix: str) -> dict[str, zarr.Array]:
     out: dict[str, zarr.Array] = {}
     for name, member in group.members():
         key = f"{prefix}{name}"
         if isinstance(member, zarr.Group):
-            out.update(_members(member, f"{key}/"))
+            out.update(_listed(member, f"{key}/"))
         else:
             out[key] = member
     return out
+
+
+def _check_dtype(path: Path, key: str, dtype: np.dtype) -> None:
+    pattern = next((p for p in DTYPE_KINDS if fnmatch.fnmatchcase(key, p)), None)
+    if pattern is None:
+        return
+    kinds = DTYPE_KINDS[pattern]
+    if np.dtype(dtype).kind not in kinds or (kinds == "u" and np.dtype(dtype) != np.uint8):
+        raise InputError(
+            f"{path}: {key}: dtype {np.dtype(dtype)}, expected {_KIND_NAMES[kinds]} "
+            f"({path / key / 'zarr.json'} was changed, or another program wrote the store; "
+            "re-run the stage that wrote it)"
+        )
+
+
+def _bad_metadata(path: Path) -> InputError | None:
+    """An InputError naming the first zarr.json under ``path`` that zarr cannot read, None
+    when zarr reads them all."""
+    for meta in sorted(path.rglob("zarr.json")):
+        try:
+            doc = json.loads(meta.read_text())
+            if not isinstance(doc, dict):
+                raise ValueError("not a JSON object")
+            if doc.get("node_type") == "array":
+                zarr.open_array(str(meta.parent), mode="r")
+            else:
+                zarr.open_group(str(meta.parent), mode="r")
+        except Exception as bad:  # whatever zarr raises for it: this is the file
+            what = f"{type(bad).__name__}: {str(bad)[:80]}"
+            return InputError(
+                f"{meta}: damaged store metadata ({what}); re-run the stage that wrote it"
+            )
+    return None
 
 
 def _check_chunks(path: Path, key: str, member: zarr.Array) -> None:
@@ -377,8 +455,11 @@ def _open_root(
         root = zarr.open_group(str(path), mode="r")
         attrs = dict(root.attrs)
         groups = (root["data"], root["meta"])
-    except (KeyError, FileNotFoundError, ValueError) as exc:
+    except FileNotFoundError as exc:
         raise InputError(f"{path}: not an episode store ({exc})") from exc
+    except (KeyError, TypeError, ValueError) as exc:
+        bad = _bad_metadata(path)
+        raise bad or InputError(f"{path}: not an episode store ({exc})") from exc
     if attrs.get("schema_version") != SCHEMA_VERSION:
         raise InputError(
             f"{path}: schema_version {attrs.get('schema_version')!r}, expected {SCHEMA_VERSION}"
@@ -525,7 +606,7 @@ def open_store(
     path = Path(path)
     recover(path)  # a commit of its output set that a killed run left half done
     groups, attrs = _open_root(path, task, kind)
-    arrays = _members(groups[0], "data/") | _members(groups[1], "meta/")
+    arrays = _members(path, groups[0], "data/") | _members(path, groups[1], "meta/")
     if "meta/episode_ends" not in arrays:
         raise InputError(f"{path}: meta/episode_ends missing (not an episode store)")
     for key, member in arrays.items():  # a listing, not a read: a damaged store stops here

@@ -126,6 +126,51 @@ def test_an_older_schema_is_refused(tmp_path):
         read_store(store)
 
 
+def edit_metadata(store: Path, array: str, edit) -> Path:
+    """``edit`` applied to the parsed zarr.json of ``array``; the file's path."""
+    import json
+
+    meta = store / array / "zarr.json"
+    doc = json.loads(meta.read_text())
+    edit(doc)
+    meta.write_text(json.dumps(doc))
+    return meta
+
+
+@pytest.mark.parametrize(
+    ("array", "dtype", "expected"),
+    [("data/actions", "int32", "floating-point"), ("meta/episodes/seed", "float64", "integer"),
+     ("data/gripper", "bool", "floating-point")],
+)  # fmt: skip
+def test_an_array_relabelled_with_another_dtype_is_refused_before_reading(
+    tmp_path, array, dtype, expected
+):
+    from mimicgen_pipe.store import open_store
+
+    store = small_store(tmp_path / "s.zarr")
+    meta = edit_metadata(store, array, lambda d: d.update(data_type=dtype))
+    for opener in (read_store, open_store):
+        with pytest.raises(InputError, match=rf"{array}: dtype {dtype}, expected {expected} "
+                           rf"\({meta}"):  # fmt: skip
+            opener(store)
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [lambda m: m.write_text("{bad"), lambda m: edit_metadata(m.parent.parent.parent,
+     "data/actions", lambda d: d.pop("shape")), lambda m: m.write_text("[1]")],
+)  # fmt: skip
+def test_a_damaged_zarr_json_is_one_error_naming_the_file(tmp_path, damage):
+    from mimicgen_pipe.store import open_store
+
+    store = small_store(tmp_path / "s.zarr")
+    meta = store / "data/actions/zarr.json"
+    damage(meta)
+    for opener in (read_store, open_store):
+        with pytest.raises(InputError, match=rf"^{meta}: damaged store metadata \("):
+            opener(store)
+
+
 # ---- the same cases through the stages (real CLI runs, exit 2, nothing written) ----
 
 
@@ -243,3 +288,19 @@ def test_worker_count_does_not_change_a_generated_stores_bytes(pipeline):
         pipeline / "data/again/stack_cube_D1.zarr",
     )
     assert tree_digest(a) == tree_digest(b)
+
+
+@pytest.mark.sim
+def test_export_and_coverage_refuse_arrays_relabelled_with_another_dtype(work):
+    store = work / "data/generated/stack_cube_D1.zarr"
+    edit_metadata(store, "data/obs/cubeA_pos", lambda d: d.update(data_type="int32"))
+    out = work / "export"
+    line = run_refused(work, "export", "--variant", "D1", "--formats", "robomimic", "--out",
+                       str(out), "--metrics", str(work / "x.json"))  # fmt: skip
+    assert "data/obs/cubeA_pos: dtype int32, expected floating-point" in line
+    assert not out.exists() and not (work / "x.json").exists()
+    edit_metadata(store, "data/obs/cubeA_pos", lambda d: d.update(data_type="float32"))
+    edit_metadata(store, "meta/episodes/initial_object_poses",
+                  lambda d: d.update(data_type="int64"))  # fmt: skip
+    line = run_refused(work, "coverage", "--variant", "D1", "--metrics", str(work / "c.json"))
+    assert "meta/episodes/initial_object_poses: dtype int64, expected floating-point" in line
