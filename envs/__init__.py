@@ -7,6 +7,7 @@ env is made) and defines
 
 - ``ROBOTS``: its arms; ``check_robot(robot)``: InputError for another, or for an arm whose
   files are missing;
+- ``CONTROL``: (control_mode, control_freq [Hz]) of every env it makes;
 - ``task_names()`` and ``load_task(name)``: its tasks, one file each under
   ``envs/<backend>/tasks/`` defining ``TASK`` (with the task spec as ``TASK.spec``): the
   choices and the modules of the registry ``envs.<backend>.tasks``;
@@ -74,6 +75,12 @@ def load_task(backend: str, name: str):
     if task.spec.name != name:
         raise ValueError(f"envs/{backend}/tasks/{name}.py defines task {task.spec.name!r}")
     return task
+
+
+def control(backend: str) -> tuple[str, int]:
+    """The controller of ``backend``'s envs and its rate [Hz]: what its stores record as
+    control_mode and control_freq."""
+    return backend_package(backend).CONTROL
 
 
 def task_spec(backend: str, task: str) -> TaskSpec:

@@ -497,6 +497,26 @@ def source_demos(
     )
 
 
+def check_source_attrs(
+    attrs: Mapping[str, Any], path: Path, backend: str, spec: TaskSpec, control: tuple[str, int]
+) -> None:
+    """InputError naming the store and attribute where the parsed store at ``path`` was not
+    recorded on ``backend`` with its ``control`` (mode, rate [Hz]) and ``spec``'s objects:
+    these attributes shape the data, and the generated store records them."""
+    expected = {
+        "backend": backend,
+        "control_mode": control[0],
+        "control_freq": control[1],
+        "objects": list(spec.objects),
+    }
+    for key, want in expected.items():
+        if attrs.get(key) != want:
+            raise InputError(
+                f"{path}: attrs.{key} is {attrs.get(key)!r}, expected {want!r} (its demos were "
+                f"not recorded for {spec.name} on {backend}; re-run the stages that made it)"
+            )
+
+
 def generated_attrs(
     run: str, params: Params, variant: str, spec: TaskSpec, source_attrs: Mapping[str, Any]
 ) -> dict[str, Any]:

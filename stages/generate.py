@@ -16,6 +16,7 @@ from mimicgen_pipe.runner import (
     AttemptSeeds,
     attempt_job,
     capped_action_noise,
+    check_source_attrs,
     check_workspace,
     generate,
     generated_attrs,
@@ -106,6 +107,7 @@ def run(args: argparse.Namespace) -> None:
         envs.make_env, params.backend, params.task, g.robot, params.maniskill.lean_step
     )
     job, store = attempt_job(params, spec, args.variant, parsed_path, make_env, make_batch)
+    check_source_attrs(store.attrs, parsed_path, params.backend, spec, envs.control(params.backend))
     seeds = AttemptSeeds(g.seed, args.variant, g.max_attempts)  # each computed when needed
     check_workspace(job, seeds, g.robot)
     run = generation_run_id(params, args.variant, store)

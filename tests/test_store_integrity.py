@@ -304,3 +304,19 @@ def test_export_and_coverage_refuse_arrays_relabelled_with_another_dtype(work):
                   lambda d: d.update(data_type="int64"))  # fmt: skip
     line = run_refused(work, "coverage", "--variant", "D1", "--metrics", str(work / "c.json"))
     assert "meta/episodes/initial_object_poses: dtype int64, expected floating-point" in line
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize(
+    ("attr", "value"), [("backend", "pybullet"), ("control_freq", 7), ("objects", ["cubeA"])]
+)
+def test_generate_refuses_source_demos_recorded_elsewhere(work, attr, value):
+    import zarr
+
+    store = work / "data/pose_noise/stack_cube.zarr"
+    zarr.open_group(str(store), mode="r+").attrs[attr] = value
+    out = work / "data/generated/again.zarr"
+    line = run_refused(work, "generate", "--variant", "D1", "--out", str(out), "--metrics",
+                       str(work / "g.json"))  # fmt: skip
+    assert f"data/pose_noise/stack_cube.zarr: attrs.{attr} is {value!r}, expected" in line
+    assert not out.exists() and not (work / "g.json").exists()

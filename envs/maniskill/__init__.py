@@ -12,6 +12,7 @@ from mimicgen_pipe.registry import choices, load
 # the Panda (envs/maniskill/env.py) and the xArm6 with the Franka hand (envs/maniskill/xarm6.py)
 ROBOTS = (*PANDA_ROBOTS, "xarm6")
 PLANNER_ROBOTS = ("panda",)  # envs/maniskill/planner.py plans with the Panda's URDF
+CONTROL = ("pd_ee_delta_pose", 20)  # every arm's controller here, and its rate [Hz]
 
 
 def check_robot(robot: str) -> None:

@@ -13,7 +13,7 @@ from mani_skill.utils.registration import REGISTERED_ENVS, register_env  # noqa:
 from mani_skill.utils.structs.pose import Pose  # noqa: E402
 
 from envs import load_task  # noqa: E402
-from envs.maniskill import lean  # noqa: E402
+from envs.maniskill import CONTROL, lean  # noqa: E402
 from envs.maniskill.lean import LeanStep  # noqa: E402
 from envs.maniskill.planner import TransitPlanner  # noqa: E402
 from envs.maniskill.tasks import ROBOTS, ManiSkillTask  # noqa: E402
@@ -160,8 +160,7 @@ class ManiSkillEnv:
     """
 
     backend = "maniskill"
-    control_mode = "pd_ee_delta_pose"
-    control_freq = 20
+    control_mode, control_freq = CONTROL
     # robot name -> ManiSkill agent uid; another arm's env (envs/maniskill/xarm6.py) swaps in
     # its own, and its own env_id_for
     agent_uids = {r: r for r in ROBOTS}

@@ -10,6 +10,8 @@ from envs.pybullet.robots import ROBOTS, robot_spec, robot_urdf_text
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.registry import choices, load
 
+CONTROL = ("ee_delta_pose", 20)  # every arm's controller here, and its rate [Hz]
+
 
 def check_robot(robot: str) -> None:
     """InputError for an unknown arm or a URDF (arm or hand) that is not on disk."""

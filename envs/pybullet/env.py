@@ -11,6 +11,7 @@ from pybullet_utils.bullet_client import BulletClient
 
 from envs import load_task
 from envs._urdf import FINGER_JOINTS, FINGER_OPEN
+from envs.pybullet import CONTROL
 from envs.pybullet.robots import (
     HOME_TCP,
     TCP_LINK,
@@ -30,7 +31,7 @@ from mimicgen_pipe.kinematics import inverse_kinematics
 from mimicgen_pipe.reset_variants import sample_planar_poses
 
 SIM_HZ = 240
-CONTROL_HZ = 20
+CONTROL_HZ = CONTROL[1]
 IK_ITERATIONS = 10  # DLS iterations per control step, from the current joint positions
 ARM_KP = 0.1  # PyBullet position-motor gain
 FINGER_FORCE = 70.0  # [N] per finger, the Franka hand's continuous grasp force
@@ -60,8 +61,7 @@ class PyBulletEnv:
     """
 
     backend = "pybullet"
-    control_mode = "ee_delta_pose"
-    control_freq = CONTROL_HZ
+    control_mode, control_freq = CONTROL
 
     def __init__(
         self,
