@@ -25,7 +25,7 @@ from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.outputs import content_digest, run_id
 from mimicgen_pipe.params import Params, data_params
 from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
-from mimicgen_pipe.store import StoreView, StoreWriter, image_key, store_cameras
+from mimicgen_pipe.store import StoreView, StoreWriter, image_key, no_episodes, store_cameras
 
 EPISODES_PER_BLOCK = 2  # ~440 pictures per block on stack_cube: 15-30 s of work
 
@@ -52,6 +52,8 @@ def check_input(view: StoreView, params: Params, where: str) -> int:
     import envs
 
     o = params.observe
+    if view.n_episodes == 0:
+        raise no_episodes(view.path, view.attrs)
     if "env_state" not in view.data_keys:
         raise InputError(
             f"{view.path}: no data/env_state (the stored simulator states images are rendered "

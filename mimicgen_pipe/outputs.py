@@ -463,6 +463,7 @@ def remove_stale(path: str | os.PathLike) -> list[Path]:
 
 _HELD: dict[Path, int] = {}  # lock file -> open descriptor holding the flock
 _CLAIMED: dict[Path, OutputKind] = {}  # resolved output path -> the kind claimed for it
+_MADE: dict[Path, list[Path]] = {}  # lock file -> the folders claiming it created
 
 
 def lock_file(path: str | os.PathLike) -> Path:
@@ -533,10 +534,12 @@ def claim(*outputs: Output, inputs: Iterable[str | os.PathLike] = ()) -> None:
             lock = lock_file(p)
             if lock in _HELD:
                 continue
+            made = [d for d in (p.parent, *p.parent.parents) if not d.exists()]
             try:
                 p.parent.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
                 raise InputError(f"{p}: cannot create {p.parent} ({exc.strerror})") from exc
+            _MADE[lock] = made  # deepest first: removed again at release while still empty
             _HELD[lock] = _acquire(p)
             taken.append(lock)
         for p in kinds:
@@ -553,13 +556,17 @@ def claim(*outputs: Output, inputs: Iterable[str | os.PathLike] = ()) -> None:
 def release(locks: list[Path] | None = None) -> None:
     """Let go of the given lock files (default: all this process holds), removing them first
     so that no empty lock files stay behind."""
-    for lock in list(_HELD) if locks is None else locks:
+    # the last taken first: a folder made for an earlier lock is empty when its turn comes
+    for lock in reversed(list(_HELD) if locks is None else locks):
         fd = _HELD.pop(lock, None)
         if fd is None:
             continue
         with contextlib.suppress(FileNotFoundError):
             lock.unlink()
         os.close(fd)
+        for folder in _MADE.pop(lock, ()):  # a refused stage leaves no empty folders
+            with contextlib.suppress(OSError):
+                folder.rmdir()
     if locks is None:
         _CLAIMED.clear()
 

@@ -360,6 +360,29 @@ def _read_array(path: Path, key: str, member: zarr.Array) -> np.ndarray:
         raise _damaged(path, key, exc) from exc
 
 
+def _check_required(
+    path: Path, attrs: Mapping[str, Any], ends: np.ndarray, missing: Sequence[str]
+) -> None:
+    """InputError for data keys a reader needs that the store lacks; a store with no
+    episodes has none, and is named as such."""
+    if not missing:
+        return
+    if len(ends) == 0:
+        raise no_episodes(path, attrs)
+    raise InputError(f"{path}: missing data keys {list(missing)}")
+
+
+def no_episodes(path: Path, attrs: Mapping[str, Any]) -> InputError:
+    """The error for a store with no episodes where a reader needs some, saying what to do."""
+    why = (
+        "generate kept none of its attempts: raise generate.max_attempts, or check the "
+        "source demos and the failed store beside it"
+        if attrs.get("kind") == "generated"
+        else "re-run the stage that wrote it with more demos"
+    )
+    return InputError(f"{path}: 0 episodes ({why})")
+
+
 def _strip(prefix: str, arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     return {k[len(prefix) :]: v for k, v in arrays.items()}
 
@@ -499,9 +522,7 @@ def read_store(
         "meta/episodes/", {k: v for k, v in arrays.items() if k.startswith("meta/episodes/")}
     )
     ends = np.asarray(arrays["meta/episode_ends"], dtype=np.int64)
-    missing = [k for k in required if k not in data]
-    if missing:
-        raise InputError(f"{path}: missing data keys {missing}")
+    _check_required(path, attrs, ends, [k for k in required if k not in data])
     missing = [k for k in required_episodes if k not in episodes]
     if missing:
         raise InputError(f"{path}: missing meta/episodes keys {missing}")
@@ -618,9 +639,7 @@ def open_store(
     episodes: dict[str, Any] = _strip(
         "meta/episodes/", {k: v for k, v in arrays.items() if k.startswith("meta/episodes/")}
     )
-    missing = [k for k in required if k not in data]
-    if missing:
-        raise InputError(f"{path}: missing data keys {missing}")
+    _check_required(path, attrs, ends, [k for k in required if k not in data])
     missing = [k for k in required_episodes if k not in episodes]
     if missing:
         raise InputError(f"{path}: missing meta/episodes keys {missing}")

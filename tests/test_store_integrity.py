@@ -320,3 +320,19 @@ def test_generate_refuses_source_demos_recorded_elsewhere(work, attr, value):
                        str(work / "g.json"))  # fmt: skip
     assert f"data/pose_noise/stack_cube.zarr: attrs.{attr} is {value!r}, expected" in line
     assert not out.exists() and not (work / "g.json").exists()
+
+
+def test_a_store_with_no_episodes_says_so_and_what_to_do(tmp_path):
+    store = tmp_path / "data/generated/stack_cube_D0.zarr"
+    attrs = {"task": "stack_cube", "variant": "D0", "backend": "maniskill", "robot": "panda",
+             "control_mode": "pd_ee_delta_pose", "control_freq": 20,
+             "objects": ["cubeA", "cubeB"]}  # fmt: skip
+    write_store(store, "generated", [], {}, attrs)
+    (tmp_path / "params.yaml").write_text(SMALL_PARAMS)
+    for args in (["train", "--data", "D0"], ["export", "--variant", "D0"],
+                 ["observe", "--variant", "D0"]):  # fmt: skip
+        line = run_refused(tmp_path, *args)
+        assert line.endswith("data/generated/stack_cube_D0.zarr: 0 episodes (generate kept "
+                             "none of its attempts: raise generate.max_attempts, or check the "
+                             "source demos and the failed store beside it)"), line  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "params.yaml"]

@@ -39,7 +39,14 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.outputs import OutputKind, directory_kind
 from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.segments import subtask_at_steps
-from mimicgen_pipe.store import EpisodeStore, image_key, open_store, read_store, store_cameras
+from mimicgen_pipe.store import (
+    EpisodeStore,
+    image_key,
+    no_episodes,
+    open_store,
+    read_store,
+    store_cameras,
+)
 from mimicgen_pipe.taskspec import ARM, SubtaskSpec, TaskSpec
 
 KINDS = ("source", "generated", "failed")  # the stores export takes
@@ -124,6 +131,8 @@ def export_dir_kind() -> OutputKind:
 
 def check(store: EpisodeStore, fmt: str, info: ExportInfo) -> None:
     """InputError naming the store, the format and what it lacks; nothing is written."""
+    if store.n_episodes == 0:
+        raise no_episodes(store.path, store.attrs)
     why = exporter(fmt).check(store, info)
     if why:
         raise InputError(f"{store.path}: cannot export as {fmt}: {why}")
