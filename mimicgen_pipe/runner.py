@@ -24,7 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 from mimicgen_pipe.batched import BatchEnv, run_batched
-from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.errors import InputError, StageError
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.generation import (
     Attempt,
@@ -455,6 +455,13 @@ def generate(
         if work is not None:
             exc.detail += f"; finished blocks kept in {work.path} (the same command resumes)"
         raise
+    except StageError as exc:
+        if work is None:
+            raise
+        raise StageError(
+            f"{exc}; {len(rows)} attempts done, their blocks kept in {work.path}: the same "
+            "command resumes from them"
+        ) from None
     finally:
         results.close()
         bar.close()
