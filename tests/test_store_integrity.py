@@ -352,3 +352,21 @@ def test_guarantee_mode_at_its_cap_is_one_line_and_leaves_nothing(work):
                          "demos; nothing was written")  # fmt: skip
     assert sorted(p.name for p in out.parent.iterdir() if "capped" in p.name) == []
     assert not (work / "g.json").exists()
+
+
+def test_arrays_come_in_name_order_whatever_order_zarr_lists_them(tmp_path, monkeypatch):
+    import zarr
+
+    from mimicgen_pipe.store import open_store
+
+    store = small_store(tmp_path / "s.zarr")
+    listed = zarr.Group.members
+
+    def shuffled(self, *args, **kwargs):  # zarr lists concurrently: any order may come
+        return tuple(reversed(tuple(listed(self, *args, **kwargs))))
+
+    monkeypatch.setattr(zarr.Group, "members", shuffled)
+    expected = ["actions", "gripper", "object_poses/cube"]
+    assert list(read_store(store).data) == expected
+    assert open_store(store).data_keys == expected
+    assert list(read_store(store).episodes) == ["seed", "subtask_term_index"]
