@@ -1,7 +1,8 @@
 """``mimicgen-pipe <stage>``: every pipeline stage from the command line.
 
 Failures a user can act on end with one line on stderr, never a traceback: bad input (exit
-2, also a second run on outputs that one is writing), and Ctrl-C or SIGTERM (exit 130/143,
+2, also a second run on outputs that one is writing), a failure outside the input that the
+stage can name (exit 1: a Ray cluster that went away), and Ctrl-C or SIGTERM (exit 130/143,
 after the stage's worker processes are gone and its temporaries removed)."""
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from mimicgen_pipe import arithmetic
 UNPINNED = arithmetic.pin()
 
 from mimicgen_pipe import outputs  # noqa: E402
-from mimicgen_pipe.errors import InputError, one_line  # noqa: E402
+from mimicgen_pipe.errors import InputError, StageError, one_line  # noqa: E402
 from mimicgen_pipe.interrupts import Interrupted, as_exceptions  # noqa: E402
 
 STAGES = {
@@ -93,6 +94,9 @@ def _run_stage(argv: list[str]) -> int:
     except InputError as exc:
         print(one_line(f"mimicgen-pipe {args.stage}: error: {exc}"), file=sys.stderr)
         return 2
+    except StageError as exc:
+        print(one_line(f"mimicgen-pipe {args.stage}: failed: {exc}"), file=sys.stderr)
+        return 1
     return 0
 
 

@@ -6,6 +6,11 @@ class InputError(Exception):
     expected. The command-line entry point prints it on one line and exits with status 2."""
 
 
+class StageError(Exception):
+    """A failure outside the user's input that the stage can say in one line (a cluster
+    that went away): the entry point prints it on one line and exits with status 1."""
+
+
 LINE_LIMIT = 1000
 
 

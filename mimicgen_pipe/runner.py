@@ -24,7 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 from mimicgen_pipe.batched import BatchEnv, run_batched
-from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.errors import InputError, StageError
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.generation import (
     Attempt,
@@ -437,8 +437,8 @@ def generate(
                     )
                 )
                 if len(rows) == IK_ABORT_AFTER and all(r[3] for r in rows):
-                    raise RuntimeError(
-                        f"generate: all of the first {IK_ABORT_AFTER} attempts failed at IK "
+                    raise InputError(
+                        f"all of the first {IK_ABORT_AFTER} attempts failed at IK "
                         f"(robot {robot!r} cannot reach the targets); nothing was written"
                     )
                 (kept if attempt.success else failed).append(attempt)
@@ -455,16 +455,27 @@ def generate(
         if work is not None:
             exc.detail += f"; finished blocks kept in {work.path} (the same command resumes)"
         raise
+    except StageError as exc:
+        if work is None:
+            raise
+        raise StageError(
+            f"{exc}; {len(rows)} attempts done, their blocks kept in {work.path}: the same "
+            "command resumes from them"
+        ) from None
     finally:
         results.close()
         bar.close()
     wall = time.perf_counter() - t0
     n = len(rows)
     if num_demos is not None and len(kept) < num_demos:
-        raise RuntimeError(
-            f"generate: {len(kept)} of {num_demos} demos after generate.max_attempts={n} "
-            f"attempts (DGR {100 * len(kept) / max(1, n):.1f}%); raise max_attempts or check "
-            "the source demos. Nothing was written."
+        # its blocks would only resume this same run to the same cap (max_attempts is part
+        # of the run id): nothing is kept
+        if work is not None:
+            work.remove()
+        raise InputError(
+            f"{len(kept)} of {num_demos} demos after generate.max_attempts={n} "
+            f"attempts (DGR {100 * len(kept) / max(1, n):.1f}%); raise generate.max_attempts "
+            "(--max-attempts) or check the source demos; nothing was written"
         )
     metrics = generation_metrics(
         np.array([r[0] for r in rows], bool),

@@ -293,7 +293,9 @@ def _members(path: Path, group: zarr.Group, prefix: str) -> dict[str, zarr.Array
 
 def _listed(group: zarr.Group, prefix: str) -> dict[str, zarr.Array]:
     out: dict[str, zarr.Array] = {}
-    for name, member in group.members():
+    # by name: zarr lists a group's members concurrently, in another order from one run to
+    # the next, and readers write what they read in this order (an export's datasets)
+    for name, member in sorted(group.members(), key=lambda m: m[0]):
         key = f"{prefix}{name}"
         if isinstance(member, zarr.Group):
             out.update(_listed(member, f"{key}/"))

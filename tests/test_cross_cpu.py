@@ -94,12 +94,12 @@ def test_the_cli_runs_the_pinned_paths_whatever_the_machine_sets():
     assert seen["numpy_avx512f"] is False and seen["numpy_sse2"] is True
 
 
-TRAIN = """
-train:
-  num_demos: 20
-  cpu: {hidden: 32, epochs: 2, steps_per_epoch: 10, checkpoint_every: 1, seeds: [0],
-        threads: 1, device: cpu}
-"""
+# a few training steps of a small BC-RNN on the 20 generated demos
+TRAIN = {
+    "num_demos": 20,
+    "cpu": {"hidden": 32, "epochs": 2, "steps_per_epoch": 10, "checkpoint_every": 1,
+            "seeds": [0], "threads": 1, "device": "cpu"},
+}  # fmt: skip
 
 
 def run_chain(work: Path, env: dict[str, str] | None) -> dict[str, str]:
@@ -107,7 +107,9 @@ def run_chain(work: Path, env: dict[str, str] | None) -> dict[str, str]:
     training steps on the generated store; the md5 of each output directory."""
     work.mkdir()
     params = work / "params.yaml"
-    params.write_text((REPO / "quickstart/params.yaml").read_text() + TRAIN)
+    doc = yaml.safe_load((REPO / "quickstart/params.yaml").read_text())
+    doc["train"] = doc.get("train", {}) | TRAIN
+    params.write_text(yaml.safe_dump(doc))
     q = "quickstart/data"
     out = {
         f"{q}/source/stack_cube.zarr": ["source"],

@@ -252,6 +252,27 @@ def test_a_policy_of_an_unknown_kind_is_refused_saying_what_was_expected(tmp_pat
     assert "not a checkpoint torch saved" in res.stderr and "Traceback" not in res.stderr
 
 
+def test_a_lerobot_config_naming_another_backbone_is_refused_before_loading(tmp_path):
+    policy = tmp_path / "policy"
+    policy.mkdir()
+    for name in ("model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json"):
+        (policy / name).write_text("{}")
+    for backbone, ok in (("resnet18", True), (None, True), ("get_model", False),
+                         ("__builtins__", False)):  # fmt: skip
+        (policy / "config.json").write_text(
+            json.dumps({"type": "act", "vision_backbone": backbone})
+        )
+        if ok:
+            assert parse_policy(f"lerobot:{policy}") == ("lerobot", policy)
+            continue
+        with pytest.raises(
+            InputError,
+            match=rf"config.json: vision_backbone '{backbone}' is "
+            "not a backbone this server builds \\(one of resnet18, resnet34",
+        ):
+            parse_policy(f"lerobot:{policy}")  # fmt: skip
+
+
 class FakeEnv:
     """A task without a simulator: the gripper moves by the action's first three numbers
     (world frame, metres), and the task succeeds once it is 1 m above its start."""

@@ -266,3 +266,20 @@ def test_the_driver_asks_the_cluster_whether_it_checks_tokens(monkeypatch):
     finally:
         for p in heads.values():
             p.communicate(timeout=60)  # closes stdin: the head stops its Ray
+
+
+@pytest.mark.slow
+def test_an_address_where_nothing_answers_is_named_as_given(monkeypatch):
+    with socket.socket() as s:  # a loopback port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    address = f"127.0.0.1:{port}"
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    monkeypatch.setenv("RAY_AUTH_TOKEN", secrets.token_hex(16))
+    monkeypatch.setenv("RAY_ADDRESS", address)
+    with pytest.raises(InputError) as err:
+        ray_executor.check_cluster(None)
+    message = str(err.value)
+    assert message.startswith(f"RAY_ADDRESS={address!r}: the Ray cluster at {address}")
+    assert message.endswith("does not answer (is the address right, the cluster up, its port "
+                            "open to this machine?)")  # fmt: skip

@@ -336,3 +336,37 @@ def test_a_store_with_no_episodes_says_so_and_what_to_do(tmp_path):
                              "none of its attempts: raise generate.max_attempts, or check the "
                              "source demos and the failed store beside it)"), line  # fmt: skip
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "params.yaml"]
+
+
+@pytest.mark.sim
+def test_guarantee_mode_at_its_cap_is_one_line_and_leaves_nothing(work):
+    out = work / "data/generated/capped.zarr"
+    res = cli("generate", "--variant", "D1", "--num-demos", "50", "--max-attempts", "6",
+              "--out", str(out), "--metrics", str(work / "g.json"), cwd=work,
+              check=False)  # fmt: skip
+    assert res.returncode == 2, res.stderr[-2000:]
+    line = res.stderr.strip().splitlines()[-1]  # after the progress bar's
+    assert "Traceback" not in res.stderr
+    assert "of 50 demos after generate.max_attempts=6 attempts" in line
+    assert line.endswith("raise generate.max_attempts (--max-attempts) or check the source "
+                         "demos; nothing was written")  # fmt: skip
+    assert sorted(p.name for p in out.parent.iterdir() if "capped" in p.name) == []
+    assert not (work / "g.json").exists()
+
+
+def test_arrays_come_in_name_order_whatever_order_zarr_lists_them(tmp_path, monkeypatch):
+    import zarr
+
+    from mimicgen_pipe.store import open_store
+
+    store = small_store(tmp_path / "s.zarr")
+    listed = zarr.Group.members
+
+    def shuffled(self, *args, **kwargs):  # zarr lists concurrently: any order may come
+        return tuple(reversed(tuple(listed(self, *args, **kwargs))))
+
+    monkeypatch.setattr(zarr.Group, "members", shuffled)
+    expected = ["actions", "gripper", "object_poses/cube"]
+    assert list(read_store(store).data) == expected
+    assert open_store(store).data_keys == expected
+    assert list(read_store(store).episodes) == ["seed", "subtask_term_index"]

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from mimicgen_pipe import arithmetic
-from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.errors import InputError, StageError
 from mimicgen_pipe.interrupts import deferred
 
 T = TypeVar("T")
@@ -176,7 +176,9 @@ def check_cluster(address: str | None) -> None:
         detail = problem.get(probe.returncode)
         if detail is None:  # the probe itself failed: its own last line says why
             detail = f"could not be checked: {probe.stderr.decode().strip().splitlines()[-1:]}"
-        raise InputError(f"{_named(address)}: the Ray cluster at {gcs} {detail}")
+        # the address as given: Ray's form of it may be this machine's own outward one
+        seen = f" (to Ray: {gcs})" if gcs != target else ""
+        raise InputError(f"{_named(address)}: the Ray cluster at {target}{seen} {detail}")
 
 
 def _connect(workers: int, address: str | None) -> bool:
@@ -279,14 +281,18 @@ def imap_unordered(
                         break
                 if not pending:
                     return
-                ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_SECONDS)
-                if not ready:
-                    continue
-                i = pending.pop(ready[0])
                 try:
+                    ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_SECONDS)
+                    if not ready:
+                        continue
+                    i = pending.pop(ready[0])
                     result = ray.get(ready[0])
                 except ray.exceptions.RayTaskError as err:  # the worker's own exception
                     raise err.as_instanceof_cause() from None
+                except ray.exceptions.RayError as err:  # Ray itself: a node or its raylet
+                    first = (str(err).strip().splitlines() or [""])[0][:200]
+                    raise StageError(f"Ray stopped during the stage ({type(err).__name__}: "
+                                     f"{first})") from None  # fmt: skip
             yield i, result
     finally:
         with deferred():

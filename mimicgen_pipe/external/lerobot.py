@@ -20,6 +20,10 @@ import numpy as np
 
 DESCRIPTION = "LeRobot policy directory: config.json, model.safetensors, processors"
 PROCESSORS = ("policy_preprocessor.json", "policy_postprocessor.json")
+# ACT, Diffusion Policy and VQ-BeT build their image encoder as
+# getattr(torchvision.models, config.vision_backbone)(...): any callable of that module by a
+# name from the file; only these backbones are accepted
+BACKBONES = ("resnet18", "resnet34", "resnet50")
 
 
 def why_not(path: Path) -> str | None:
@@ -38,6 +42,13 @@ def why_not(path: Path) -> str | None:
         return f"{path}/config.json: not JSON ({exc})"
     if not isinstance(config, dict) or not isinstance(config.get("type"), str):
         return f"{path}/config.json: names no policy type"
+    backbone = config.get("vision_backbone")
+    if backbone is not None and backbone not in BACKBONES:
+        shown = repr(backbone)[:60]
+        return (
+            f"{path}/config.json: vision_backbone {shown} is not a backbone this server builds "
+            f"(one of {', '.join(BACKBONES)})"
+        )
     return None
 
 
