@@ -121,9 +121,10 @@ def run_chain(work: Path, env: dict[str, str] | None) -> dict[str, str]:
     }  # fmt: skip
     for path, args in out.items():
         stage = args[0]
-        targets = {"train": ["--out", path, "--plot", "train.csv"]}.get(stage, ["--out", path])
-        cli(*args, "--params", str(params), *targets, "--metrics", f"{stage}.json", cwd=work,
-            env=env)  # fmt: skip
+        extra = {"parse": [], "train": ["--plot", "train.csv"]}.get(stage, [])
+        if stage != "parse":  # parse writes no metrics
+            extra += ["--metrics", f"{stage}.json"]
+        cli(*args, "--params", str(params), "--out", path, *extra, cwd=work, env=env)
     return {path: dvc_dir_md5(work / path) for path in out}
 
 
