@@ -505,27 +505,3 @@ def test_an_interrupted_ray_run_ends_in_one_line_and_stops_its_ray(work, sig):
     time.sleep(2.0)
     assert {p for p in ray_processes() - before if alive(p)} == set()
 
-
-@pytest.mark.slow
-def test_a_local_ray_whose_raylet_dies_is_one_stage_error(monkeypatch):
-    """A worker kills its raylet (its parent process), as when a node's Ray is killed: the
-    driver gets a StageError of one line, not Ray's traceback and not a wait."""
-    from mimicgen_pipe.errors import StageError
-    from mimicgen_pipe.executors import ray as ray_executor
-
-    monkeypatch.delenv("RAY_ADDRESS", raising=False)
-
-    def kill_raylet_at_3(x: int) -> int:  # a closure: shipped to the workers by value
-        if x == 3:
-            os.kill(os.getppid(), signal.SIGKILL)
-            time.sleep(60)
-        return x
-
-    got, t0 = [], time.monotonic()
-    with pytest.raises(StageError, match=r"^Ray stopped during the stage \("
-                       r"LocalRayletDiedError: "):  # fmt: skip
-        for i, _ in ray_executor.imap_unordered(
-            kill_raylet_at_3, [(i, i) for i in range(8)], 2, lambda: None
-        ):
-            got.append(i)
-    assert 3 not in got and time.monotonic() - t0 < 120
