@@ -504,4 +504,3 @@ def test_an_interrupted_ray_run_ends_in_one_line_and_stops_its_ray(work, sig):
     assert lines[0].startswith(f"mimicgen-pipe generate: interrupted ({sig.name}) after ")
     time.sleep(2.0)
     assert {p for p in ray_processes() - before if alive(p)} == set()
-
