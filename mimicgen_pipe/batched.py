@@ -9,46 +9,29 @@ the next seed. What an attempt draws (scene, source demos, offsets, noise) comes
 seed alone, so the same seeds give the same attempts as one at a time, whichever slot runs
 them; the physics each slot steps is its back end's.
 
-A back end's batched form is a :class:`BatchEnv`. :class:`LockstepBatch` makes one of any
-envs of the env protocol, stepped one after the other (on CPUs, where each simulator holds
-one scene); a GPU simulation holding N scenes in one batch is another.
+A back end's batched form is a :class:`mimicgen_pipe.contracts.BatchEnv`.
+:class:`LockstepBatch` makes one of any envs of the env protocol, stepped one after the other
+(on CPUs, where each simulator holds one scene); a GPU simulation holding N scenes in one
+batch is another.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
+from mimicgen_pipe.contracts import BatchEnv, Env
 from mimicgen_pipe.generation import (
     Attempt,
     AttemptActions,
-    Env,
     GenerationConfig,
     SourceDemos,
     attempt_actions,
 )
 from mimicgen_pipe.params import check_batch_size
 from mimicgen_pipe.taskspec import TaskSpec
-
-
-class BatchEnv(Protocol):
-    """``num_envs`` scenes stepped together. ``slot(k)`` is scene k as an env of the env
-    protocol (its reads and its reset are its own; its ``step`` is never called by the
-    engine); ``step`` advances the scenes whose ``active`` entry is True by their row of
-    ``actions`` ((num_envs, 7) delta-pose actions), the others not at all."""
-
-    num_envs: int
-
-    def slot(self, k: int) -> Env: ...
-
-    def step(self, actions: np.ndarray, active: np.ndarray) -> None: ...
-
-    def rebuild(self) -> None: ...
-
-    def close(self) -> None: ...
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,10 @@ from typing import Any, Protocol
 import numpy as np
 from tqdm import tqdm
 
+from mimicgen_pipe.contracts import Env
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
-from mimicgen_pipe.generation import Env, arm_envs
+from mimicgen_pipe.generation import arm_envs
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.observations import arms_observation_values, low_dim_observation
 from mimicgen_pipe.outputs import check_same_run

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from collections.abc import Generator, Mapping
 from dataclasses import dataclass
-from typing import Protocol, cast
+from typing import cast
 
 import numpy as np
 
 from mimicgen_pipe import poses
+from mimicgen_pipe.contracts import ArmEnv, Env, MultiArmEnv, PlanningEnv
 from mimicgen_pipe.controller import clip_actions
 from mimicgen_pipe.observations import arms_observation_values, observation_values
 from mimicgen_pipe.pose_noise import PoseNoise, generation_rng, perturb_pose
@@ -18,90 +19,6 @@ from mimicgen_pipe.segments import segment_bounds
 from mimicgen_pipe.selection import Candidates
 from mimicgen_pipe.taskspec import ARM, TaskSpec, arm_key
 from mimicgen_pipe.transit import PlannerSettings, approach_start
-
-
-class Env(Protocol):
-    """Everything the generator and the stages call on a simulator back end's env (see
-    docs/extending.md, the env protocol); a back end's env implements all of it. All poses are 4x4
-    homogeneous transforms in the world frame [m]."""
-
-    spec: TaskSpec  # the task (envs/<backend>/tasks/<task>.py)
-    robot: str  # the arm's name, e.g. panda
-    control_mode: str  # the action space, e.g. ManiSkill's pd_ee_delta_pose
-    control_freq: int  # control steps per second [Hz]
-
-    def reset(self, seed: int, variant: str) -> None:
-        """A new scene drawn from reset variant ``variant`` (D0, D1, ...) with ``seed``."""
-
-    def rebuild(self) -> None:
-        """Rebuild the scene, dropping whatever the simulator carries between episodes."""
-
-    def eef_pose(self) -> np.ndarray:
-        """The end effector's (TCP's) pose, world frame."""
-
-    def object_poses(self) -> dict[str, np.ndarray]:
-        """Object name -> pose, world frame, for every object of the task spec."""
-
-    def gripper_state(self) -> np.ndarray:
-        """Finger joint positions [m]."""
-
-    def step(self, action: np.ndarray) -> None:
-        """One control step of a (7,) delta-pose action: translation, rotation, gripper."""
-
-    def subtask_signals(self) -> dict[str, bool]:
-        """Signal name -> value now, for every signal the task's subtasks read."""
-
-    def is_success(self) -> bool: ...
-
-    def get_state(self) -> np.ndarray:
-        """The whole simulator state as a flat float32 array (for replay and rendering)."""
-
-    def set_state(self, state: np.ndarray) -> None: ...
-
-    def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray:
-        """The (7,) action that moves the TCP from where it is to ``target`` (world)."""
-
-    def action_to_target_pose(self, action: np.ndarray) -> np.ndarray:
-        """The TCP target (world) that ``action`` commands from where the TCP is."""
-
-    def reachable(self, targets: np.ndarray) -> np.ndarray:
-        """(K,) bool: whether the arm has an IK solution for each TCP target (K, 4, 4)."""
-
-    def close(self) -> None: ...
-
-
-class ArmEnv(Protocol):
-    """One arm of an env: what the generator reads and commands per arm. Poses are 4x4 in
-    the world frame [m]; an action is the arm's 7: translation, rotation, gripper."""
-
-    def eef_pose(self) -> np.ndarray: ...
-
-    def gripper_state(self) -> np.ndarray: ...
-
-    def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray: ...
-
-    def action_to_target_pose(self, action: np.ndarray) -> np.ndarray: ...
-
-    def reachable(self, targets: np.ndarray) -> np.ndarray: ...
-
-
-class MultiArmEnv(Env, Protocol):
-    """An env of a task with several arms (TaskSpec.arms): its ``step`` takes 7 action
-    entries per arm, in the task's arm order; the scene's reads are the env's own, each
-    arm's are ``arm(name)``'s."""
-
-    def arm(self, name: str) -> ArmEnv: ...
-
-
-class PlanningEnv(Env, Protocol):
-    """An env whose back end has a motion planner (generate.transit: planned)."""
-
-    def plan_transit(
-        self, target: np.ndarray, settings: PlannerSettings, rng: np.random.Generator
-    ) -> tuple[np.ndarray | None, str]:
-        """TCP targets (K, 4, 4), world, one per control step, along a collision-free path
-        from the TCP's pose now to ``target``, drawing from ``rng``; or None and why there is
-        none."""
 
 
 def transform_segment(

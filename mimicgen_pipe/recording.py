@@ -13,8 +13,9 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from mimicgen_pipe.contracts import Env
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.generation import Env, replay_actions
+from mimicgen_pipe.generation import replay_actions
 from mimicgen_pipe.params import SourceParams
 from mimicgen_pipe.taskspec import ARM
 

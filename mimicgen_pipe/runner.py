@@ -23,12 +23,12 @@ from typing import Any, cast, overload
 import numpy as np
 from tqdm import tqdm
 
-from mimicgen_pipe.batched import BatchEnv, run_batched
+from mimicgen_pipe.batched import run_batched
+from mimicgen_pipe.contracts import BatchEnv, Env
 from mimicgen_pipe.errors import InputError, StageError
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.generation import (
     Attempt,
-    Env,
     GenerationConfig,
     SourceDemos,
     reachable_scenes,

@@ -1,0 +1,190 @@
+"""The contracts between the library and the simulator back ends: what a back end's env, arm,
+batch of scenes, renderer and package provide, and what a source demo is. The library reads
+only these; a back end (``envs/<backend>/``) implements them. Nothing here imports a
+simulator.
+
+All poses are 4x4 homogeneous transforms in the world frame [m]; an action is 7 entries per
+arm: translation, rotation (a delta pose), gripper.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from mimicgen_pipe.taskspec import TaskSpec
+from mimicgen_pipe.transit import PlannerSettings
+
+
+class Env(Protocol):
+    """Everything the generator and the stages call on a simulator back end's env (see
+    docs/extending.md, the env protocol); a back end's env implements all of it. All poses are 4x4
+    homogeneous transforms in the world frame [m]."""
+
+    spec: TaskSpec  # the task (envs/<backend>/tasks/<task>.py)
+    robot: str  # the arm's name, e.g. panda
+    control_mode: str  # the action space, e.g. ManiSkill's pd_ee_delta_pose
+    control_freq: int  # control steps per second [Hz]
+
+    def reset(self, seed: int, variant: str) -> None:
+        """A new scene drawn from reset variant ``variant`` (D0, D1, ...) with ``seed``."""
+
+    def rebuild(self) -> None:
+        """Rebuild the scene, dropping whatever the simulator carries between episodes."""
+
+    def eef_pose(self) -> np.ndarray:
+        """The end effector's (TCP's) pose, world frame."""
+
+    def object_poses(self) -> dict[str, np.ndarray]:
+        """Object name -> pose, world frame, for every object of the task spec."""
+
+    def gripper_state(self) -> np.ndarray:
+        """Finger joint positions [m]."""
+
+    def step(self, action: np.ndarray) -> None:
+        """One control step of a (7,) delta-pose action: translation, rotation, gripper."""
+
+    def subtask_signals(self) -> dict[str, bool]:
+        """Signal name -> value now, for every signal the task's subtasks read."""
+
+    def is_success(self) -> bool: ...
+
+    def get_state(self) -> np.ndarray:
+        """The whole simulator state as a flat float32 array (for replay and rendering)."""
+
+    def set_state(self, state: np.ndarray) -> None: ...
+
+    def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray:
+        """The (7,) action that moves the TCP from where it is to ``target`` (world)."""
+
+    def action_to_target_pose(self, action: np.ndarray) -> np.ndarray:
+        """The TCP target (world) that ``action`` commands from where the TCP is."""
+
+    def reachable(self, targets: np.ndarray) -> np.ndarray:
+        """(K,) bool: whether the arm has an IK solution for each TCP target (K, 4, 4)."""
+
+    def close(self) -> None: ...
+
+
+class ArmEnv(Protocol):
+    """One arm of an env: what the generator reads and commands per arm. Poses are 4x4 in
+    the world frame [m]; an action is the arm's 7: translation, rotation, gripper."""
+
+    def eef_pose(self) -> np.ndarray: ...
+
+    def gripper_state(self) -> np.ndarray: ...
+
+    def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray: ...
+
+    def action_to_target_pose(self, action: np.ndarray) -> np.ndarray: ...
+
+    def reachable(self, targets: np.ndarray) -> np.ndarray: ...
+
+
+class MultiArmEnv(Env, Protocol):
+    """An env of a task with several arms (TaskSpec.arms): its ``step`` takes 7 action
+    entries per arm, in the task's arm order; the scene's reads are the env's own, each
+    arm's are ``arm(name)``'s."""
+
+    def arm(self, name: str) -> ArmEnv: ...
+
+
+class PlanningEnv(Env, Protocol):
+    """An env whose back end has a motion planner (generate.transit: planned)."""
+
+    def plan_transit(
+        self, target: np.ndarray, settings: PlannerSettings, rng: np.random.Generator
+    ) -> tuple[np.ndarray | None, str]:
+        """TCP targets (K, 4, 4), world, one per control step, along a collision-free path
+        from the TCP's pose now to ``target``, drawing from ``rng``; or None and why there is
+        none."""
+
+
+class BatchEnv(Protocol):
+    """``num_envs`` scenes stepped together. ``slot(k)`` is scene k as an env of the env
+    protocol (its reads and its reset are its own; its ``step`` is never called by the
+    engine); ``step`` advances the scenes whose ``active`` entry is True by their row of
+    ``actions`` ((num_envs, 7) delta-pose actions), the others not at all."""
+
+    num_envs: int
+
+    def slot(self, k: int) -> Env: ...
+
+    def step(self, actions: np.ndarray, active: np.ndarray) -> None: ...
+
+    def rebuild(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class SourceEpisode:
+    """One source demo before recording: its reset seed (D0), the env state before the first
+    action (the back end's get_state()), and its actions (T, 7)."""
+
+    seed: int
+    initial_state: np.ndarray
+    actions: np.ndarray
+
+
+class Renderer(Protocol):
+    """A back end's drawing of stored states: ``envs/<backend>/render.py`` defines
+    ``Renderer(task, robot, width, height, cameras)`` (width, height [px]; cameras: names of
+    :data:`CAMERAS`) of this protocol."""
+
+    def render(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        """Camera name -> (height, width, 3) uint8 image of the scene in ``state`` (the
+        env's get_state())."""
+
+    def close(self) -> None: ...
+
+
+# the observation cameras a back end may have (their poses: envs/_cameras.py)
+CAMERAS = ("agentview", "eye_in_hand")
+
+
+class Backend(Protocol):
+    """A simulator back end: the package ``envs/<backend>/``, a choice of the registry
+    ``envs`` (mimicgen_pipe.registry). Its ``__init__`` imports no simulator (its other
+    modules do, when an env is made). A module of ``envs/`` whose name starts with ``_`` is
+    shared by back ends and is none.
+
+    Optionally a back end also defines ``PLANNER_ROBOTS``: the arms whose envs plan transits
+    (:class:`PlanningEnv`; generate.transit: planned); and a batched form
+    (:class:`BatchEnv`, generate.num_envs): ``check_batched(task, robot, num_envs,
+    sim_backend)``, InputError for a batch it cannot run, and ``make_batch(task, robot,
+    num_envs, sim_backend)``. Back ends draw the scenes of their reset variants with
+    mimicgen_pipe.reset_variants.
+    """
+
+    ROBOTS: Sequence[str]  # its arms
+    CONTROL: tuple[str, int]  # (control_mode, control_freq [Hz]) of every env it makes
+
+    def check_robot(self, robot: str) -> None:
+        """InputError for an arm it does not have, or for one whose files are missing."""
+
+    def cameras(self, robot: str) -> tuple[str, ...]:
+        """The observation cameras (of :data:`CAMERAS`) that ``robot`` has there."""
+
+    def task_names(self) -> tuple[str, ...]:
+        """Its tasks, one file each under ``envs/<backend>/tasks/`` (the choices of the
+        registry ``envs.<backend>.tasks``)."""
+
+    def load_task(self, name: str) -> Any:
+        """The task object ``TASK`` of ``envs/<backend>/tasks/<name>.py``; its task spec is
+        ``TASK.spec``."""
+
+    def make_env(self, task: str, robot: str, lean_step: bool) -> Env:
+        """A fresh env of ``task`` (lean_step: the ManiSkill back end's lean control step; a
+        back end with one step ignores it)."""
+
+    def source_episodes(
+        self, env: Env, num_demos: int, seed: int, from_file: str | None, work_dir: Path
+    ) -> tuple[list[SourceEpisode], int, int]:
+        """Up to ``num_demos`` source demos on ``env`` from its demonstrator, drawn from reset
+        seeds seed, seed + 1, ... (or ``from_file``'s, a file format of its own), how many the
+        demonstrator dropped as failures, and how many seeds it tried (0 for a file)."""
