@@ -1,6 +1,7 @@
 """The documentation: README.md stays short, says the test command CI runs, every relative
-link in README.md and docs/ leads to a file (and heading) the repository has, and every
-params key has its row in docs/stages-and-params.md."""
+link in README.md, docs/ and lab/README.md leads to a file (and heading) the repository has,
+every `python <file>.py` command they give names a file the repository has, and every params
+key has its row in docs/stages-and-params.md."""
 
 from __future__ import annotations
 
@@ -16,13 +17,14 @@ from mimicgen_pipe.params import Params
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
 README_MAX_LINES = 200
-PAGES = [README, *sorted((REPO / "docs").rglob("*.md"))]
+PAGES = [README, *sorted((REPO / "docs").rglob("*.md")), REPO / "lab" / "README.md"]
 
 FENCE = re.compile(r"^(```|~~~).*?^\1[^\n]*$", re.M | re.S)
 INLINE_CODE = re.compile(r"`[^`\n]*`")
 LINK = re.compile(r"!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
 HEADING = re.compile(r"^#{1,6}\s+(.+?)\s*#*\s*$", re.M)
 SCHEME = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*:")
+PYTHON_FILE = re.compile(r"\bpython3?\s+([\w./-]+\.py)\b")
 
 
 def _prose(text: str) -> str:
@@ -82,6 +84,28 @@ def test_the_link_check_finds_broken_links_and_only_those(tmp_path: Path) -> Non
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
 def test_every_relative_link_resolves(page: Path) -> None:
     assert broken_links(page) == []
+
+
+def missing_scripts(page: Path, root: Path = REPO) -> list[str]:
+    """Each ``python <file>.py`` of ``page`` (in code or prose) whose file, a path from the
+    repository root, ``root`` lacks."""
+    return [f for f in PYTHON_FILE.findall(page.read_text()) if not (root / f).is_file()]
+
+
+def test_the_script_check_finds_missing_scripts(tmp_path: Path) -> None:
+    (tmp_path / "tools").mkdir()
+    (tmp_path / "tools" / "there.py").write_text("")
+    page = tmp_path / "page.md"
+    page.write_text(
+        "Run `python tools/there.py --help` or\n```bash\n.venv/bin/python tools/gone.py\n```\n"
+        "and `python -m pytest`, then python3 old/place.py.\n"
+    )
+    assert missing_scripts(page, root=tmp_path) == ["tools/gone.py", "old/place.py"]
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
+def test_every_python_command_names_a_file_of_the_repository(page: Path) -> None:
+    assert missing_scripts(page) == []
 
 
 def test_readme_is_short() -> None:

@@ -1,12 +1,14 @@
-"""scripts/stack_pyramid_rollouts.py: its sorting of failed rollouts, and one rollout of the
+"""lab/scripts/stack_pyramid_rollouts.py: its sorting of failed rollouts, and one rollout of the
 real task followed cube by cube."""
 
 import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-spec = importlib.util.spec_from_file_location("spr", "scripts/stack_pyramid_rollouts.py")
+SCRIPT = Path(__file__).resolve().parents[1] / "lab" / "scripts" / "stack_pyramid_rollouts.py"
+spec = importlib.util.spec_from_file_location("spr", SCRIPT)
 spr = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(spr)
 

@@ -3,8 +3,8 @@ written and with its constraints removed (each arm then selects its own source d
 every subtask and starts each subtask as soon as its own previous one ends), on the same
 parsed source demos, attempt seeds and action noise.
 
-    python scripts/two_arm_constraints.py --task two_robot_lift_bar --variants D0 D1 \\
-        --attempts 200 --out metrics/experiments/two_arm_constraints_two_robot_lift_bar.json
+    python lab/scripts/two_arm_constraints.py --task two_robot_lift_bar --variants D0 D1 \\
+        --attempts 200 --out lab/outputs/two_arm_constraints_two_robot_lift_bar.json
 
 Prints a line per (variant, spec) and writes the figures to ``--out``.
 """
@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 import envs  # noqa: E402

@@ -3,7 +3,7 @@ evaluate stage rolls them out (its scenes, blocks and workers, so a success rate
 stage's), and for each subtask the episodes that ended it (its term signal's first rise
 after the subtask before it ended, as parse finds subtask ends in a demo).
 
-    python scripts/rollouts_by_subtask.py --task drawer_cleanup --variant D0 \\
+    python lab/scripts/rollouts_by_subtask.py --task drawer_cleanup --variant D0 \\
         --policy data/policies/drawer_cleanup_D0/seed0/epoch00200.pt [more .pt] \\
         [--episodes 50] [--component most_likely] [--horizon 600] \\
         [--backend maniskill] [--robot xarm6] [--out rollouts.json]

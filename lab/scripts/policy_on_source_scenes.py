@@ -2,7 +2,7 @@
 variant, with how far each new scene is from the nearest source demo's: whether a policy
 trained on a few demos reproduces them and fails to generalise, or fails on both.
 
-    python scripts/policy_on_source_scenes.py --task stack_cube \\
+    python lab/scripts/policy_on_source_scenes.py --task stack_cube \\
         --policy data/policies/stack_cube_source/seed0/epoch00200.pt \\
         [--source data/source/stack_cube.zarr] [--variant D0] [--episodes 50] [--out FILE]
 

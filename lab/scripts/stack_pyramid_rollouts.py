@@ -1,7 +1,7 @@
 """Where a stack_pyramid policy's rollouts fail: how cube A leaves the hand and where it
 lands beside cube B, whether the hand goes on to cube C, and how the scene ends.
 
-    python scripts/stack_pyramid_rollouts.py \\
+    python lab/scripts/stack_pyramid_rollouts.py \\
         --policy data/policies/stack_pyramid_D0_paper_h100/seed0/epoch00300.pt [more .pt] \\
         [--episodes 50] [--variant D0] [--component most_likely] [--out rollouts.json]
 

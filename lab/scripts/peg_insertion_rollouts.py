@@ -1,7 +1,7 @@
 """Where a peg_insertion policy's rollouts end: the peg head in the hole's frame, as
 ManiSkill's success test measures it, at the end of each episode.
 
-    python scripts/peg_insertion_rollouts.py \\
+    python lab/scripts/peg_insertion_rollouts.py \\
         --policy data/policies/peg_insertion_D0_cpu3/seed1/epoch00100.pt [--episodes 20] \\
         [--variant D0] [--component most_likely] [--out rollouts.json]
 
