@@ -1,26 +1,33 @@
-"""Write or check the code deps of every DVC stage: exactly the project files its command
-runs from, so that editing a file re-runs the stages that import it and no other.
+"""The code deps of every DVC stage: exactly the project files its command runs from, so
+that editing a file re-runs the stages that import it and no other.
 
-    python scripts/dvc_deps.py --check   # exit 1 and list the differences (tests run this)
-    python scripts/dvc_deps.py --write   # rewrite the code deps in place
+Each pipeline's first stage, ``code_deps``, depends on the project's packages as folders and
+writes one manifest per stage, ``<pipeline folder>/code_deps/<stage>.txt``: the md5 and path
+of every file that stage runs from. Each stage depends on its own manifest. An edit anywhere
+re-runs ``code_deps`` (about a second); DVC then re-runs only the stages whose manifest
+changed, so the pipelines stay short and the deps stay exact.
+
+    python scripts/dvc_deps.py --manifests suite/dvc.yaml   # the code_deps stage's command
+    python scripts/dvc_deps.py --check   # exit 1 naming what differs (tests run this)
+    python scripts/dvc_deps.py --write   # write every pipeline's manifests
 
 A stage ``mimicgen-pipe <stage> ...`` runs from ``stages/<stage>.py``, the CLI's arithmetic
-pins (``mimicgen_pipe/arithmetic.py``: they decide the outputs' last bits), every project module
-it imports (transitively, imports inside functions included), and every module of a
+pins (``mimicgen_pipe/arithmetic.py``: they decide the outputs' last bits), every project
+module it imports (transitively, imports inside functions included), and every module of a
 registry package it loads from by a name known at run time (``registry.load("<package>",
-name)``; a literal name: that module only; see
-mimicgen_pipe/registry.py). Under ``envs/`` only the stage's back end is followed (the
-``--backend`` its command passes, else the pipeline's ``backend`` param). Task files are
-looked up by name at run time; each stage lists its own task file as a templated dep
-(``envs/<backend>/tasks/${task}.py``), which this script leaves as written, and follows what
-those task files import. Only list items that are project ``.py`` files are rewritten;
-data, reference files and templated paths stay where they are.
+name)``; a literal name: that module only; see mimicgen_pipe/registry.py). Under ``envs/``
+only the stage's back end is followed (the ``--backend`` its command passes, else the
+pipeline's ``backend`` param). Task files are looked up by name at run time; each stage lists
+its own task file as a templated dep (``envs/<backend>/tasks/${task}.py``), which stays in
+dvc.yaml, and its manifest follows what those task files import.
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import functools
+import hashlib
 import os
 import re
 import sys
@@ -33,6 +40,10 @@ REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("mimicgen_pipe", "envs", "stages")
 PIPELINES = ("dvc.yaml", "suite/dvc.yaml", "quickstart/dvc.yaml", "transit/dvc.yaml")
 CODE_DEP = re.compile(r"^(mimicgen_pipe|envs|stages)/[^$]*\.py$")
+# a project .py file, or a task file by template: what a manifest holds
+TASK_OR_CODE = re.compile(
+    r"^(\.\./)?((mimicgen_pipe|envs|stages)/[^$]*|envs/[^/]+/tasks/\$\{[\w.]+\})\.py$"
+)
 
 
 def module_file(name: str) -> Path | None:
@@ -56,6 +67,7 @@ def package_modules(package: str) -> list[str]:
     ]
 
 
+@functools.cache  # one parse per file: a check walks the same modules for ~100 stages
 def imported_modules(path: Path) -> set[str]:
     """Project modules ``path`` imports anywhere in its body (``from a import b`` counts
     both a and a.b, since b may be a submodule), and every module of each registry package
@@ -146,6 +158,9 @@ def pipeline_params(pipeline: Path) -> dict:
     return yaml.safe_load(path.read_text())
 
 
+TASKLESS = ("--suite", "--transit")  # report flags: the command reads no single task's file
+
+
 def stage_code(stage: dict, params: dict) -> tuple[str, str, list[str]]:
     """(stage module, back end, task names) that a dvc.yaml stage's command runs."""
     cmd = _resolve(" ".join(stage["cmd"].split()), params)
@@ -156,9 +171,25 @@ def stage_code(stage: dict, params: dict) -> tuple[str, str, list[str]]:
     if "${item.task}" in cmd:
         axis = (stage.get("matrix") or {})["task"]
         tasks = _resolve_list(axis, params) if isinstance(axis, str) else [str(t) for t in axis]
+    elif any(flag in words for flag in TASKLESS):
+        tasks = []
     else:
         tasks = [words[words.index("--task") + 1]] if "--task" in words else [params["task"]]
     return f"stages.{words[1]}", backend, tasks
+
+
+def read_params(stage: dict) -> list[str]:
+    """The params keys that decide which files a stage runs: its back end and its tasks."""
+    cmd = " ".join(stage["cmd"].split())
+    keys = re.findall(r"--backend \$\{([\w.]+)\}", cmd)
+    if "--backend" not in cmd:
+        keys.append("backend")
+    if "${item.task}" in cmd:
+        axis = (stage.get("matrix") or {}).get("task")
+        keys += re.findall(r"^\$\{([\w.]+)\}$", axis) if isinstance(axis, str) else []
+    elif not any(flag in cmd.split() for flag in TASKLESS):
+        keys += re.findall(r"--task \$\{([\w.]+)\}", cmd) or ([] if "--task" in cmd else ["task"])
+    return keys
 
 
 def wanted_deps(pipeline: Path) -> dict[str, list[str]]:
@@ -174,84 +205,143 @@ def wanted_deps(pipeline: Path) -> dict[str, list[str]]:
     return out
 
 
-def rewrite(text: str, wanted: dict[str, list[str]]) -> str:
-    """``text`` (a dvc.yaml) with each stage's project .py deps replaced by ``wanted``,
-    placed where its first one was (at the top of ``deps`` when it had none); comments,
-    order and every other line kept."""
-    out: list[str] = []
-    top = stage = None
-    in_deps = placed = False
+MANIFESTS = "code_deps"  # per pipeline folder: one manifest per stage
+CODE_STAGE = "code_deps"
 
-    def place() -> None:
-        nonlocal placed
-        if stage in wanted and not placed:
-            out.extend(f"      - {d}\n" for d in wanted[stage])
-            placed = True
 
-    for line in text.splitlines(keepends=True):
-        if m := re.match(r"^(\w+):", line):
-            top, stage, in_deps = m.group(1), None, False
-        elif top == "stages" and (m := re.match(r"^  ([\w-]+):", line)):
-            stage, in_deps = m.group(1), False
-        elif stage and re.match(r"^    deps:\s*$", line):
-            in_deps, placed = True, False
-            out.append(line)
+def manifest(files: Iterable[Path]) -> str:
+    """``<md5>  <path>`` per file (paths from the repository root), sorted by path."""
+    return "".join(
+        f"{hashlib.md5((REPO / f).read_bytes()).hexdigest()}  {f.as_posix()}\n"
+        for f in sorted(files)
+    )
+
+
+def task_file(backend: str, task: str) -> Path:
+    return Path("envs", backend, "tasks", f"{task}.py")
+
+
+def manifests(pipeline: Path) -> dict[Path, str]:
+    """Manifest path -> text, for every stage of ``pipeline`` but the code stage itself. A
+    stage with a matrix over tasks has one manifest per task, ``<stage>/<task>.txt``, so that
+    editing one task's file re-runs that task's stages only."""
+    doc = yaml.safe_load(pipeline.read_text())
+    params = pipeline_params(pipeline)
+    folder = pipeline.parent / MANIFESTS
+    out = {}
+    for name, stage in doc["stages"].items():
+        if name == CODE_STAGE:
             continue
-        elif in_deps and not re.match(r"^      (- |#)", line):
-            place()
-            in_deps = False
-        if in_deps and (m := re.match(r"^      - (\S+)\s*$", line)):
-            dep = m.group(1).removeprefix("../")
-            if CODE_DEP.match(dep):
-                place()
-                continue
-            if not placed and not line.lstrip().startswith("#"):
-                place()
-        out.append(line)
-    return "".join(out)
+        module, backend, tasks = stage_code(stage, params)
+        if "${item.task}" in stage["cmd"]:
+            for task in tasks:
+                files = closure(module, backend, [task]) | {task_file(backend, task)}
+                out[folder / name / f"{task}.txt"] = manifest(files)
+        else:
+            files = closure(module, backend, tasks) | {task_file(backend, t) for t in tasks}
+            out[folder / f"{name}.txt"] = manifest(files)
+    return out
+
+
+def write_manifests(pipeline: Path) -> list[Path]:
+    """Write ``pipeline``'s manifests (only those whose text changed) and delete the folder's
+    other files. Returns the written ones."""
+    wanted = manifests(pipeline)
+    folder = pipeline.parent / MANIFESTS
+    for old in sorted(folder.rglob("*"), reverse=True) if folder.exists() else []:
+        if old.is_file() and old not in wanted:
+            old.unlink()
+        elif old.is_dir() and not any(w.is_relative_to(old) for w in wanted):
+            old.rmdir()
+    written = []
+    for path, text in wanted.items():
+        if not path.exists() or path.read_text() != text:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text)
+            written.append(path)
+    return written
+
+
+def manifest_dep(pipeline: Path, name: str, stage: dict) -> str:
+    """The dep a stage lists for its manifest, relative to its wdir."""
+    wdir = (pipeline.parent / stage.get("wdir", ".")).resolve()
+    folder = Path(os.path.relpath((pipeline.parent / MANIFESTS).resolve(), wdir)).as_posix()
+    if "${item.task}" in stage["cmd"]:
+        return f"{folder}/{name}/${{item.task}}.txt"
+    return f"{folder}/{name}.txt"
+
+
+def code_stage_params(doc: dict) -> list[str]:
+    """The params keys the code stage reads: every key that picks a stage's back end or tasks."""
+    return sorted({k for n, s in doc["stages"].items() if n != CODE_STAGE for k in read_params(s)})
+
+
+CODE_FOLDERS = ["mimicgen_pipe", "envs", "stages", "scripts/dvc_deps.py"]
+
+
+def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
+    """What is wrong with the code deps of ``pipeline``'s stages (``doc``: its parsed text,
+    read from the file by default). The pipeline must have the code stage, depending on the
+    project's code folders and on the params that pick back ends and tasks; every other stage
+    must list its own manifest, and no project .py file or task file of its own."""
+    doc = doc if doc is not None else yaml.safe_load(pipeline.read_text())
+    rel = os.path.relpath(pipeline, REPO)
+    code = doc["stages"].get(CODE_STAGE)
+    if code is None:
+        return [f"{rel}: no {CODE_STAGE} stage"]
+    out = []
+    wdir = (pipeline.parent / code.get("wdir", ".")).resolve()
+    folders = [Path(os.path.relpath(REPO / f, wdir)).as_posix() for f in CODE_FOLDERS]
+    if sorted(code.get("deps") or []) != sorted(folders):
+        out.append(f"{rel}: {CODE_STAGE}: deps {code.get('deps')}, should be {folders}")
+    keys = sorted(k for item in code.get("params") or [] for k in _keys(item))
+    if keys != code_stage_params(doc):
+        out.append(f"{rel}: {CODE_STAGE}: params {keys}, should be {code_stage_params(doc)}")
+    for name, stage in doc["stages"].items():
+        if name == CODE_STAGE:
+            continue
+        deps = stage.get("deps") or []
+        if manifest_dep(pipeline, name, stage) not in deps:
+            out.append(f"{rel}: {name}: does not list {manifest_dep(pipeline, name, stage)}")
+        files = [d for d in deps if isinstance(d, str) and TASK_OR_CODE.match(d)]
+        if files:
+            out.append(f"{rel}: {name}: lists code files its manifest holds: {files}")
+    return out
+
+
+def _keys(item: str | dict) -> list[str]:
+    """The keys of one ``params`` entry: a key, or ``{file: [keys]}``."""
+    return [item] if isinstance(item, str) else [k for keys in item.values() for k in keys]
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     mode = p.add_mutually_exclusive_group(required=True)
-    mode.add_argument("--check", action="store_true", help="exit 1 when a deps list differs")
-    mode.add_argument("--write", action="store_true", help="rewrite the deps lists in place")
+    mode.add_argument("--manifests", metavar="DVC_YAML", help="write one pipeline's manifests")
+    mode.add_argument("--check", action="store_true", help="exit 1 when something differs")
+    mode.add_argument("--write", action="store_true", help="write every pipeline's manifests")
     args = p.parse_args(argv)
-    stale = []
+    if args.manifests:
+        for path in write_manifests((Path.cwd() / args.manifests).resolve()):
+            print(f"{path.relative_to(REPO)}: written")
+        return 0
+    problems = []
     for name in PIPELINES:
         path = REPO / name
         if not path.exists():
             continue
-        text = path.read_text()
-        new = rewrite(text, wanted_deps(path))
-        if new == text:
-            continue
         if args.write:
-            path.write_text(new)
-            print(f"{name}: code deps rewritten")
-        else:
-            old_deps = _code_deps(text)
-            new_deps = _code_deps(new)
-            differ = []
-            for stage in sorted(set(old_deps) | set(new_deps)):
-                extra = sorted(set(old_deps.get(stage, ())) - set(new_deps.get(stage, ())))
-                missing = sorted(set(new_deps.get(stage, ())) - set(old_deps.get(stage, ())))
-                if extra or missing:
-                    differ.append(f"{name}: {stage}: missing {missing}, not imported {extra}")
-            stale += differ or [f"{name}: code deps out of order"]
-    for line in stale:
+            for written in write_manifests(path):
+                print(f"{written.relative_to(REPO)}: written")
+        problems += stage_problems(path)
+        for manifest_path, text in manifests(path).items():
+            if not manifest_path.exists() or manifest_path.read_text() != text:
+                problems.append(f"{manifest_path.relative_to(REPO)}: stale")
+    for line in problems:
         print(line, file=sys.stderr)
-    if stale:
+    if problems:
         print("run: python scripts/dvc_deps.py --write", file=sys.stderr)
-    return 1 if stale else 0
-
-
-def _code_deps(text: str) -> dict[str, list[str]]:
-    doc = yaml.safe_load(text)
-    return {
-        name: [d for d in stage.get("deps", []) if CODE_DEP.match(d.removeprefix("../"))]
-        for name, stage in doc["stages"].items()
-    }
+    return 1 if problems else 0
 
 
 if __name__ == "__main__":

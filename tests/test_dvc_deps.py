@@ -1,10 +1,13 @@
-"""dvc.yaml's code deps are exact: every stage lists the project files its command runs
-from (written by scripts/dvc_deps.py), so that editing a file re-runs the stages that import
-it, and only those."""
+"""Every stage's code deps are exact: its manifest (``<pipeline>/code_deps/<stage>.txt``,
+written by scripts/dvc_deps.py from the imports) lists the project files its command runs
+from, so that editing a file re-runs the stages that import it, and only those."""
 
 from __future__ import annotations
 
 import importlib.util
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -15,31 +18,54 @@ spec = importlib.util.spec_from_file_location("dvc_deps", REPO / "scripts/dvc_de
 dvc_deps = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(dvc_deps)
 
-PIPELINES = [p for p in dvc_deps.PIPELINES if (REPO / p).exists()]
+PIPELINES = [REPO / p for p in dvc_deps.PIPELINES if (REPO / p).exists()]
+DVC = Path(sys.executable).parent / "dvc"
 
 
-def all_stages() -> list[tuple[str, str, dict]]:
-    return [
-        (pipeline, name, stage)
+def manifest_files() -> dict[Path, set[str]]:
+    """Manifest -> the files it lists, over every pipeline."""
+    return {
+        path: {line.split()[1] for line in text.splitlines()}
         for pipeline in PIPELINES
-        for name, stage in yaml.safe_load((REPO / pipeline).read_text())["stages"].items()
-    ]
+        for path, text in dvc_deps.manifests(pipeline).items()
+    }
 
 
-def test_every_pipeline_lists_exactly_the_code_its_stages_import():
+def rerun_by_edit(edited: str) -> set[str]:
+    """The manifests (paths from the repository root) of every stage an edit of the file
+    ``edited`` re-runs: those that list it (the code stage re-runs on any edit, and is left
+    out)."""
+    return {
+        path.relative_to(REPO).as_posix()
+        for path, files in manifest_files().items()
+        if edited in files
+    }
+
+
+def test_every_pipeline_lists_its_manifests_and_they_are_fresh():
     assert dvc_deps.main(["--check"]) == 0, "run: python scripts/dvc_deps.py --write"
 
 
-def test_the_check_sees_a_dropped_and_an_extra_dep():
-    text = (REPO / "dvc.yaml").read_text()
-    wanted = dvc_deps.wanted_deps(REPO / "dvc.yaml")
-    dropped = text.replace("      - mimicgen_pipe/store.py\n", "", 1)
-    extra = text.replace(
-        "      - stages/__init__.py\n", "      - stages/__init__.py\n      - stages/report.py\n", 1
-    )
-    for broken in (dropped, extra):
-        assert broken != text
-        assert dvc_deps.rewrite(broken, wanted) == text
+def test_the_check_sees_a_missing_manifest_a_code_file_and_a_wrong_code_stage():
+    pipeline = REPO / "quickstart/dvc.yaml"
+    doc = yaml.safe_load(pipeline.read_text())
+    assert dvc_deps.stage_problems(pipeline, doc) == []
+    no_manifest = yaml.safe_load(pipeline.read_text())
+    no_manifest["stages"]["export"]["deps"].pop(0)
+    code_file = yaml.safe_load(pipeline.read_text())
+    code_file["stages"]["parse"]["deps"].append("mimicgen_pipe/store.py")
+    no_param = yaml.safe_load(pipeline.read_text())
+    no_param["stages"]["code_deps"]["params"] = [{"quickstart/params.yaml": ["task"]}]
+    no_folder = yaml.safe_load(pipeline.read_text())
+    no_folder["stages"]["code_deps"]["deps"].remove("envs")
+    for broken, says in [
+        (no_manifest, "export: does not list quickstart/code_deps/export.txt"),
+        (code_file, "parse: lists code files"),
+        (no_param, "code_deps: params"),
+        (no_folder, "code_deps: deps"),
+    ]:
+        problems = dvc_deps.stage_problems(pipeline, broken)
+        assert len(problems) == 1 and says in problems[0], problems
 
 
 def test_the_closure_follows_lazy_imports_and_one_back_end():
@@ -61,41 +87,114 @@ def test_a_registry_load_depends_on_every_module_of_its_package(tmp_path):
         assert module in found
 
 
-def test_a_task_file_is_a_dep_of_its_own_stages_only():
+def test_a_task_file_is_in_its_own_stages_manifests_only():
     """Editing one task's file re-runs that task's stages, not every task's."""
-    for pipeline, name, stage in all_stages():
-        module, backend, tasks = dvc_deps.stage_code(
-            stage, dvc_deps.pipeline_params(REPO / pipeline)
-        )
-        if "--suite" in stage["cmd"]:  # the suite's report reads every suite task's spec
-            assert "envs/${suite.backend}/tasks" in stage["deps"], name
-            continue
-        if "report --transit" in stage["cmd"]:  # the transit report reads metrics files only
-            assert not any("tasks/${" in d for d in stage["deps"]), name
-            continue
-        assert f"envs/{backend}" not in stage["deps"], f"{name}: depends on every task file"
-        files = dvc_deps.closure(module, backend, tasks)
-        assert not any(f.parent.name == "tasks" and f.name != "__init__.py" for f in files), (
-            f"{pipeline}: {name}: a task file is imported statically"
-        )
-        assert any("tasks/${" in d for d in stage["deps"]), f"{name}: its task file is no dep"
+    for path, files in manifest_files().items():
+        tasks = {f for f in files if "/tasks/" in f and not f.endswith("__init__.py")}
+        if path.stem in ("report_suite", "report_transit"):  # read metrics and specs by name
+            assert not tasks, path
+        elif path.parent.name != "code_deps":  # <stage>/<task>.txt
+            assert len(tasks) == 1 and Path(tasks.pop()).stem == path.stem, path
+        else:
+            assert len(tasks) == 1, (path, tasks)
+    # one task of the suite: its stages (and the dataset-size stages, which run it) only
+    edited = rerun_by_edit("envs/maniskill/tasks/peg_insertion.py")
+    scaling = yaml.safe_load((REPO / "params.yaml").read_text())["suite"]["scaling"]["task"]
+    assert scaling == "peg_insertion"
+    assert edited and all(
+        s.startswith("suite/") and ("/peg_insertion.txt" in s or "_scaling.txt" in s)
+        for s in edited
+    ), sorted(edited)
+
+
+def test_an_exporter_edit_reruns_export_stages_only():
+    edited = rerun_by_edit("mimicgen_pipe/exporters/lerobot.py")
+    assert edited == {
+        "code_deps/export.txt",
+        "code_deps/export_observed.txt",
+        "quickstart/code_deps/export.txt",
+    }, sorted(edited)
+
+
+def test_an_edit_of_the_robomimic_reader_reruns_source_stages_only():
+    reader = "mimicgen_pipe/robomimic_source.py"
+    edited = rerun_by_edit(reader)
+    commands = {s.split("code_deps/")[1].split("/")[0].removesuffix(".txt") for s in edited}
+    assert commands and all(c.startswith("source") for c in commands), sorted(edited)
+    sources = [s for p in PIPELINES for s in yaml.safe_load(p.read_text())["stages"]
+               if s.startswith("source")]  # fmt: skip
+    assert len(commands) == len(set(sources)), (commands, sources)
 
 
 @pytest.mark.parametrize("package", ["exporters", "executors"])
 def test_an_exporter_or_executor_is_a_dep_only_where_it_runs(package):
-    """Editing an exporter re-runs only export stages (and source, which reads robomimic
-    files); an executor only the stages that run their work through one."""
+    """An exporter is in export stages' manifests only; an executor only in those of the
+    stages that run their work through one."""
     users = {
-        "exporters": {"export", "source"},
+        "exporters": {"export"},
         # train: seeds side by side; observe: blocks of episodes pictured
         "executors": {"generate", "evaluate", "export", "train", "observe"},
     }
-    for pipeline, name, stage in all_stages():
-        command = stage["cmd"].split()[1]
-        modules = [
-            d
-            for d in stage["deps"]
-            if d.startswith(f"mimicgen_pipe/{package}/") and not d.endswith("__init__.py")
-        ]
-        if command not in users[package]:
-            assert not modules, f"{pipeline}: {name} ({command}) depends on {modules}"
+    for pipeline in PIPELINES:
+        doc = yaml.safe_load(pipeline.read_text())
+        params = dvc_deps.pipeline_params(pipeline)
+        for path, files in dvc_deps.manifests(pipeline).items():
+            name = path.stem if path.parent.name == "code_deps" else path.parent.name
+            command = dvc_deps.stage_code(doc["stages"][name], params)[0].split(".")[1]
+            modules = [
+                f
+                for f in files
+                if f.startswith(f"mimicgen_pipe/{package}/") and not f.endswith("__init__.py")
+            ]
+            if command not in users[package]:
+                assert not modules, f"{path}: ({command}) depends on {modules}"
+
+
+def test_dvc_reruns_only_the_stages_whose_manifest_changed(tmp_path):
+    """The mechanism, on DVC itself: after an edit the code stage re-runs, and a stage whose
+    manifest came out the same is skipped."""
+    work = tmp_path / "repo"
+    for name in ("mimicgen_pipe", "envs", "stages", "scripts"):
+        shutil.copytree(REPO / name, work / name, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(REPO / ".dvcignore", work / ".dvcignore")
+    (work / "params.yaml").write_text("task: stack_cube\nbackend: maniskill\n")
+    log = "echo {0} >> ran.log && touch {0}.out"
+    (work / "dvc.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "stages": {
+                    "code_deps": {
+                        "cmd": f"{sys.executable} scripts/dvc_deps.py --manifests dvc.yaml",
+                        "deps": dvc_deps.CODE_FOLDERS,
+                        "params": ["backend", "task"],
+                        "outs": [{"code_deps": {"cache": False}}],
+                    },
+                    **{
+                        name: {
+                            "cmd": f"mimicgen-pipe {name} && " + log.format(name),
+                            "deps": [f"code_deps/{name}.txt"],
+                            "outs": [f"{name}.out"],
+                        }
+                        for name in ("export", "parse")
+                    },
+                }
+            }
+        )
+    )
+    # the stage commands stand in for mimicgen-pipe: only the manifests are real
+    (work / "bin").mkdir()
+    (work / "bin/mimicgen-pipe").write_text("#!/bin/sh\ntrue\n")
+    (work / "bin/mimicgen-pipe").chmod(0o755)
+    env = {"PATH": f"{work / 'bin'}:/usr/bin:/bin", "HOME": str(tmp_path)}
+
+    def run(*args: str) -> None:
+        subprocess.run(args, cwd=work, env=env, check=True, capture_output=True)
+
+    run("git", "init", "-q")
+    run(str(DVC), "init", "-q")
+    run(str(DVC), "repro", "-q")
+    assert (work / "ran.log").read_text().split() == ["export", "parse"]
+    with open(work / "mimicgen_pipe/exporters/lerobot.py", "a") as f:
+        f.write("\n# an edit\n")
+    run(str(DVC), "repro", "-q")
+    assert (work / "ran.log").read_text().split() == ["export", "parse", "export"]
