@@ -1,46 +1,21 @@
-"""Simulator back ends behind one protocol (mimicgen_pipe.generation.Env).
-
-A back end is a package ``envs/<backend>/``, a choice of the registry ``envs``
-(mimicgen_pipe.registry); a module here whose name starts with ``_`` is shared by back ends
-and is none. A back end's ``__init__`` imports no simulator (its other modules do, when an
-env is made) and defines
-
-- ``ROBOTS``: its arms; ``check_robot(robot)``: InputError for another, or for an arm whose
-  files are missing;
-- ``CONTROL``: (control_mode, control_freq [Hz]) of every env it makes;
-- ``task_names()`` and ``load_task(name)``: its tasks, one file each under
-  ``envs/<backend>/tasks/`` defining ``TASK`` (with the task spec as ``TASK.spec``): the
-  choices and the modules of the registry ``envs.<backend>.tasks``;
-- ``make_env(task, robot, lean_step)``: a fresh env of the protocol (lean_step: the ManiSkill
-  back end's lean control step; a back end with one step ignores it);
-- ``source_episodes(env, num_demos, seed, from_file, work_dir)``: source demos from its
-  demonstrator or from a file format of its own (mimicgen_pipe.source_files reads robomimic
-  files on every back end);
-
-- ``cameras(robot)``: the observation cameras (of CAMERAS) that ``robot`` has there;
-- optionally ``PLANNER_ROBOTS``: the arms whose envs plan transits
-  (mimicgen_pipe.generation.PlanningEnv; generate.transit: planned);
-- optionally a batched form (mimicgen_pipe.batched.BatchEnv, generate.num_envs):
-  ``check_batched(task, robot, num_envs, sim_backend)``, InputError for a batch it cannot
-  run, and ``make_batch(task, robot, num_envs, sim_backend)``;
-
-and has a module ``render.py`` whose ``Renderer(task, robot, width, height, cameras)`` draws
-stored states (mimicgen_pipe.video.make_renderer, for the render and observe stages). Back
-ends draw the scenes of their reset variants with mimicgen_pipe.reset_variants.
+"""Simulator back ends behind the contracts of mimicgen_pipe/contracts.py: each back end is a
+package ``envs/<backend>/`` implementing ``contracts.Backend``, a choice of the registry
+``envs`` (mimicgen_pipe.registry); a module here whose name starts with ``_`` is shared by
+back ends and is none. The functions here choose a back end by name through that registry
+and check what is asked of it before any simulator starts.
 """
 
 from __future__ import annotations
 
 import functools
 import types
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from threadpoolctl import threadpool_limits
 
+from mimicgen_pipe.contracts import Renderer, SourceEpisode
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.params import Params, check_batch_size
 from mimicgen_pipe.registry import choices, load
@@ -162,6 +137,22 @@ def make_env(backend: str, task: str, robot: str = "panda", lean_step: bool = Tr
     return backend_package(backend).make_env(task, robot, lean_step)
 
 
+def make_renderer(
+    backend: str,
+    task: str,
+    robot: str,
+    width: int,
+    height: int,
+    cameras: Sequence[str] = ("video",),
+) -> Renderer:
+    """A renderer of stored states of ``task`` on ``backend`` (contracts.Renderer), images
+    ``width`` x ``height`` [px] from ``cameras``: ``video``, the render stage's view, or
+    those of CAMERAS (placed by envs/_cameras.py)."""
+    task_spec(backend, task)
+    check_robot(backend, robot)
+    return backend_package(backend).make_renderer(task, robot, width, height, cameras)
+
+
 def check_batched(
     backend: str, task: str, robot: str, num_envs: int, sim_backend: str | None, transit: str
 ) -> None:
@@ -186,7 +177,7 @@ def check_batched(
 
 
 def make_batch_env(backend: str, task: str, robot: str, num_envs: int, sim_backend: str | None):
-    """A fresh batch of ``num_envs`` scenes of ``task`` (mimicgen_pipe.batched.BatchEnv),
+    """A fresh batch of ``num_envs`` scenes of ``task`` (mimicgen_pipe.contracts.BatchEnv),
     after :func:`check_batched`; numpy's BLAS on one thread, as :func:`make_env`."""
     threadpool_limits(1, user_api="blas")
     return backend_package(backend).make_batch(task, robot, num_envs, sim_backend)
@@ -206,16 +197,6 @@ def generation_batches(params: Params) -> Callable[[], Any] | None:
     )
 
 
-@dataclass(frozen=True)
-class SourceEpisode:
-    """One source demo before recording: its reset seed (D0), the env state before the first
-    action (the back end's get_state()), and its actions (T, 7)."""
-
-    seed: int
-    initial_state: np.ndarray
-    actions: np.ndarray
-
-
 def source_episodes(
     backend: str,
     env,
@@ -229,3 +210,13 @@ def source_episodes(
     end's own), how many the demonstrator dropped as failures, and how many seeds it tried
     (0 for a file)."""
     return backend_package(backend).source_episodes(env, num_demos, seed, from_file, work_dir)
+
+
+def source_file_episodes(backend: str, path: str, task: str) -> int | None:
+    """The number of episodes of ``path``, a source file in ``backend``'s own format, read
+    and checked whole (InputError naming the file and key when it is broken); None where
+    the back end reads no file format of its own."""
+    package = backend_package(backend)
+    if not hasattr(package, "source_file_episodes"):
+        return None
+    return package.source_file_episodes(path, task)

@@ -132,19 +132,20 @@ class SourceEpisode:
 
 
 class Renderer(Protocol):
-    """A back end's drawing of stored states: ``envs/<backend>/render.py`` defines
-    ``Renderer(task, robot, width, height, cameras)`` (width, height [px]; cameras: names of
-    :data:`CAMERAS`) of this protocol."""
+    """Pictures of stored states (the env's get_state()) from ``cameras``: ``video``, the
+    render stage's view, and the observation cameras (envs.CAMERAS, placed by
+    envs/_cameras.py). Images are (height, width, 3) uint8 RGB, on the CPU."""
 
-    def render(self, state: np.ndarray) -> dict[str, np.ndarray]:
-        """Camera name -> (height, width, 3) uint8 image of the scene in ``state`` (the
-        env's get_state())."""
+    cameras: tuple[str, ...]
+    seconds: dict[str, float]  # [s] spent per camera in images(), its scene updates included
+
+    def images(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        """Camera name -> image of the scene in ``state``."""
+
+    def frame(self, state: np.ndarray) -> np.ndarray:
+        """The first camera's image of the scene in ``state``."""
 
     def close(self) -> None: ...
-
-
-# the observation cameras a back end may have (their poses: envs/_cameras.py)
-CAMERAS = ("agentview", "eye_in_hand")
 
 
 class Backend(Protocol):
@@ -153,12 +154,18 @@ class Backend(Protocol):
     modules do, when an env is made). A module of ``envs/`` whose name starts with ``_`` is
     shared by back ends and is none.
 
-    Optionally a back end also defines ``PLANNER_ROBOTS``: the arms whose envs plan transits
-    (:class:`PlanningEnv`; generate.transit: planned); and a batched form
-    (:class:`BatchEnv`, generate.num_envs): ``check_batched(task, robot, num_envs,
-    sim_backend)``, InputError for a batch it cannot run, and ``make_batch(task, robot,
-    num_envs, sim_backend)``. Back ends draw the scenes of their reset variants with
-    mimicgen_pipe.reset_variants.
+    Optionally a back end also defines
+
+    - ``PLANNER_ROBOTS``: the arms whose envs plan transits (:class:`PlanningEnv`;
+      generate.transit: planned);
+    - a batched form (:class:`BatchEnv`, generate.num_envs): ``check_batched(task, robot,
+      num_envs, sim_backend)``, InputError for a batch it cannot run, and
+      ``make_batch(task, robot, num_envs, sim_backend)``;
+    - ``source_file_episodes(path, task)``: the number of episodes of a source file in a
+      format of its own (source.from_file), read and checked whole before any simulator
+      starts (robomimic files are read on every back end: mimicgen_pipe/source_files.py).
+
+    Back ends draw the scenes of their reset variants with mimicgen_pipe.reset_variants.
     """
 
     ROBOTS: Sequence[str]  # its arms
@@ -168,7 +175,7 @@ class Backend(Protocol):
         """InputError for an arm it does not have, or for one whose files are missing."""
 
     def cameras(self, robot: str) -> tuple[str, ...]:
-        """The observation cameras (of :data:`CAMERAS`) that ``robot`` has there."""
+        """The observation cameras (of envs.CAMERAS) that ``robot`` has there."""
 
     def task_names(self) -> tuple[str, ...]:
         """Its tasks, one file each under ``envs/<backend>/tasks/`` (the choices of the
@@ -188,3 +195,9 @@ class Backend(Protocol):
         """Up to ``num_demos`` source demos on ``env`` from its demonstrator, drawn from reset
         seeds seed, seed + 1, ... (or ``from_file``'s, a file format of its own), how many the
         demonstrator dropped as failures, and how many seeds it tried (0 for a file)."""
+
+    def make_renderer(
+        self, task: str, robot: str, width: int, height: int, cameras: Sequence[str]
+    ) -> Renderer:
+        """A fresh :class:`Renderer` of ``task``'s stored states, images ``width`` x
+        ``height`` [px]; its simulator is imported here, by the stages that render alone."""

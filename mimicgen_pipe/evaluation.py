@@ -168,7 +168,7 @@ def rollout(
 ) -> Rollout:
     """One episode: reset the scene from ``seed``, act until the task succeeds or ``horizon``
     steps have run. ``cameras``: for a policy that reads images, a renderer of the env's
-    state (mimicgen_pipe.video.make_renderer), whose images join the observation as
+    state (mimicgen_pipe.contracts.Renderer), whose images join the observation as
     ``<camera>_image``, the store's ``obs/<camera>_image`` (the same picture of the same
     state as the observe stage takes). ``term_signals``: the term signals of the subtasks
     but the last, in order, whose ends the rollout records in its ``subtask_ends``. ``arms``:

@@ -11,7 +11,7 @@ same for any number of workers; a killed run resumes from its finished blocks
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from mimicgen_pipe.contracts import Renderer
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.interrupts import Interrupted
@@ -30,10 +31,19 @@ from mimicgen_pipe.store import StoreView, StoreWriter, image_key, no_episodes, 
 EPISODES_PER_BLOCK = 2  # ~440 pictures per block on stack_cube: 15-30 s of work
 
 
+# the back end's renderer maker (contracts.Backend.make_renderer): (task, robot, width [px],
+# height [px], cameras) -> a renderer; picklable, for it is sent to every worker
+RendererMaker = Callable[[str, str, int, int, Sequence[str]], Renderer]
+
+# checks that an arm has cameras on a back end (envs.check_cameras): (backend, robot,
+# cameras, where) -> None, or InputError naming ``where``
+CameraCheck = Callable[[str, str, Sequence[str], str], None]
+
+
 @dataclass(frozen=True)
 class ObserveJob:
-    """What a worker needs, sent once per worker: the store whose states it renders and the
-    renderer's settings. Image sizes in pixels."""
+    """What a worker needs, sent once per worker: the store whose states it renders, the
+    renderer's settings and the back end's ``make_renderer``. Image sizes in pixels."""
 
     store: Path
     backend: str
@@ -42,15 +52,15 @@ class ObserveJob:
     cameras: tuple[str, ...]
     height: int
     width: int
+    make_renderer: RendererMaker
 
 
-def check_input(view: StoreView, params: Params, where: str) -> int:
+def check_input(view: StoreView, params: Params, where: str, check_cameras: CameraCheck) -> int:
     """The number of episodes observed (observe.episodes, null: all), after checking before
     any work that ``view`` can be observed as ``params`` say: it has env_state and no images
-    yet, its arm has every camera asked for (``where``: the params file, for the message)
-    and it holds that many episodes. InputError otherwise."""
-    import envs
-
+    yet, its arm has every camera asked for on its back end (``check_cameras``; ``where``:
+    the params file, for the message) and it holds that many episodes. InputError
+    otherwise."""
     o = params.observe
     if view.n_episodes == 0:
         raise no_episodes(view.path, view.attrs)
@@ -65,7 +75,7 @@ def check_input(view: StoreView, params: Params, where: str) -> int:
             "observe the store it was observed from"
         )
     backend, robot = view.attrs["backend"], view.attrs["robot"]
-    envs.check_cameras(backend, robot, o.cameras, f"{where}: observe.cameras")
+    check_cameras(backend, robot, o.cameras, f"{where}: observe.cameras")
     if o.episodes is not None and o.episodes > view.n_episodes:
         raise InputError(
             f"{where}: observe.episodes {o.episodes}: {view.path} has {view.n_episodes} episodes"
@@ -114,15 +124,14 @@ class ImageBlockCodec:
         return {k: arrays[k] for k in arrays}
 
 
-_WORKER: tuple[ObserveJob, Any, StoreView] | None = None
+_WORKER: tuple[ObserveJob, Renderer, StoreView] | None = None
 
 
 def _init_worker(job: ObserveJob) -> None:
     global _WORKER
     from mimicgen_pipe.store import open_store
-    from mimicgen_pipe.video import make_renderer
 
-    renderer = make_renderer(job.backend, job.task, job.robot, job.width, job.height, job.cameras)
+    renderer = job.make_renderer(job.task, job.robot, job.width, job.height, job.cameras)
     _WORKER = (job, renderer, open_store(job.store))
 
 

@@ -24,7 +24,7 @@ from mimicgen_pipe.taskspec import ARM
 SEEDS_PER_DEMO = 20
 
 # (demos wanted, first reset seed, source.from_file, a scratch directory) -> (demos, each
-# with its reset seed, initial_state and actions (T, 7) as envs.SourceEpisode; seeds the
+# with its reset seed, initial_state and actions (T, 7) as contracts.SourceEpisode; seeds the
 # demonstrator dropped without a usable demo; seeds it tried, 0 for a file)
 DrawDemos = Callable[[int, int, str | None, Path], tuple[Sequence[Any], int, int]]
 

@@ -1,5 +1,5 @@
 """Videos of stored episodes: captions, MP4 and GIF writing. Frames are (H, W, 3) uint8 RGB,
-rendered by the back ends (make_renderer)."""
+rendered by a back end's renderer (mimicgen_pipe.contracts.Renderer)."""
 
 from __future__ import annotations
 
@@ -21,31 +21,6 @@ KEPT_RGB, FAILED_RGB, TEXT_RGB, BAND_RGB = (
     (255, 255, 255),
     (25, 25, 25),
 )
-
-
-def make_renderer(
-    backend: str,
-    task: str,
-    robot: str,
-    width: int,
-    height: int,
-    cameras: Sequence[str] = ("video",),
-):
-    """A renderer of stored states of ``task`` on ``backend`` from ``cameras`` (``video``,
-    the render stage's view, or the observation cameras of envs/_cameras.py),
-    envs/<backend>/render.py's ``Renderer``: ``.images(state)`` gives camera -> (height,
-    width, 3) uint8 RGB image on the CPU, ``.frame(state)`` the first camera's, ``.close()``.
-    Imported here, by the render and observe stages alone, so that no other stage depends on
-    a renderer."""
-    import envs
-
-    envs.task_spec(backend, task)
-    envs.check_robot(backend, robot)
-    if backend == "maniskill":
-        from envs.maniskill.render import Renderer
-    else:
-        from envs.pybullet.render import Renderer
-    return Renderer(task, robot, width, height, cameras)
 
 
 def episode_frames(

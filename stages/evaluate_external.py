@@ -91,11 +91,9 @@ def camera_renderer(
     """How a worker makes the renderer of the cameras a policy reads (None: it reads none)."""
     if not cameras or size is None:
         return None
-    from mimicgen_pipe.video import make_renderer  # image policies alone need a renderer
-
     height, width = size
     return functools.partial(
-        make_renderer, params.backend, params.task, robot, width, height, cameras
+        envs.make_renderer, params.backend, params.task, robot, width, height, cameras
     )
 
 

@@ -5,9 +5,11 @@ as an observed store."""
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from pathlib import Path
 
+import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
@@ -49,12 +51,21 @@ def run(args: argparse.Namespace) -> None:
     out = Path(args.out or layout.observed_store(params.task, args.variant))
     metrics_path = Path(args.metrics or layout.metrics_file("observe", params.task, args.variant))
     view = open_store(store_path, task=params.task)
-    n = check_input(view, params, args.params)
+    n = check_input(view, params, args.params, envs.check_cameras)
     a = view.attrs
     kind = a["kind"]
     claim((out, store_kind(kind)), metrics_path, inputs=[store_path])
+    # the store's own back end renders it, in every worker
+    make_renderer = functools.partial(envs.make_renderer, a["backend"])
     job = ObserveJob(
-        store_path, a["backend"], params.task, a["robot"], tuple(o.cameras), o.height, o.width
+        store_path,
+        a["backend"],
+        params.task,
+        a["robot"],
+        tuple(o.cameras),
+        o.height,
+        o.width,
+        make_renderer,
     )
     blocks = episode_blocks(n)
     run_id = observe_run_id(params, a, view.read_rows("env_state", range(n)))

@@ -13,7 +13,7 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import check_same_run, claim, directory_kind, output_set
 from mimicgen_pipe.store import read_store
-from mimicgen_pipe.video import episode_frames, make_renderer, write_gif, write_mp4
+from mimicgen_pipe.video import episode_frames, write_gif, write_mp4
 from stages import add_generated_arguments, add_selection_arguments, stage_params
 
 # what the stage writes in its media directory: videos of kept and failed attempts
@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> None:
     check_same_run({k: s.attrs.get("run_id") for k, s in stores.items()})
     claim((out, MEDIA_DIR), metrics_path, inputs=[kept_path, failed_path])
     attrs = stores["generated"].attrs
-    renderer = make_renderer(params.backend, params.task, attrs["robot"], r.width, r.height)
+    renderer = envs.make_renderer(params.backend, params.task, attrs["robot"], r.width, r.height)
     fps = int(attrs["control_freq"])
     frames_total, seconds = 0, 0.0
     with output_set(metrics_path, out) as (tmp_metrics, tmp_out):

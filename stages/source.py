@@ -24,23 +24,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def check_source_file(params: Params, params_path: str) -> int:
     """Read and check every episode of ``source.from_file`` (not None) before the simulator
-    starts, as the back end's reader will: a robomimic ``.hdf5``/``.hdf`` on either back
-    end, a ManiSkill trajectory ``.h5`` with its ``.json`` on maniskill. Returns the number
-    of episodes; InputError naming the file and key when it is unreadable or broken, or has
-    fewer episodes than source.num_demos (of which the first num_demos are used)."""
+    starts, as the back end's reader will: a robomimic ``.hdf5``/``.hdf`` on any back end,
+    else a file format of the back end's own (maniskill: a trajectory ``.h5`` with its
+    ``.json``). Returns the number of episodes; InputError naming the file and key when it
+    is unreadable or broken, or has fewer episodes than source.num_demos (of which the first
+    num_demos are used)."""
     p = params.source
     assert p.from_file is not None
     if source_files.is_robomimic_file(p.from_file):
         n = len(source_files.robomimic_demos(p.from_file, params.backend, params.task))
-    elif params.backend == "maniskill":
-        from envs.maniskill.source import read_trajectory_file
-
-        n = len(read_trajectory_file(p.from_file, params.task))
     else:
+        n = envs.source_file_episodes(params.backend, p.from_file, params.task)
+    if n is None:
         raise InputError(
-            f"{params_path}: source.from_file: {p.from_file}: ManiSkill trajectory files (.h5) "
-            f"are read on the maniskill back end only; on {params.backend} give a robomimic "
-            ".hdf5 (as the export stage writes) or null for the scripted demonstrator"
+            f"{params_path}: source.from_file: {p.from_file}: backend {params.backend} reads "
+            "no source file format of its own; give a robomimic .hdf5 (as the export stage "
+            "writes) or null for the scripted demonstrator"
         )
     if n < p.num_demos:
         raise InputError(
@@ -64,7 +63,8 @@ def run(args: argparse.Namespace) -> None:
     claim((out, store_kind("source")), metrics_path, inputs=given)
     env = envs.make_env(params.backend, params.task, p.robot, params.maniskill.lean_step)
     print(f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)")
-    draw = functools.partial(source_files.source_episodes, params.backend, env)
+    demonstrator = functools.partial(envs.source_episodes, params.backend)
+    draw = functools.partial(source_files.source_episodes, params.backend, demonstrator, env)
     demos = record_source_demos(env, spec.objects, draw, p, params.task, out, spec.arms)
     from mimicgen_pipe.store import write_store
 

@@ -368,10 +368,9 @@ def test_rollouts_show_an_image_policy_its_cameras_pictures_of_the_moment():
     beside the low-dim keys."""
     import envs
     from mimicgen_pipe.evaluation import evaluation_seed, rollout
-    from mimicgen_pipe.video import make_renderer
 
     env = envs.make_env("maniskill", "stack_cube")
-    renderer = make_renderer("maniskill", "stack_cube", "panda", 40, 32, ("agentview",))
+    renderer = envs.make_renderer("maniskill", "stack_cube", "panda", 40, 32, ("agentview",))
     try:
         policy = Recorder(env)
         seed = evaluation_seed(0, "D1", 0)

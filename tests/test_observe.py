@@ -19,7 +19,6 @@ from mimicgen_pipe.cli import main
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.store import open_store, read_store, write_store
-from mimicgen_pipe.video import make_renderer
 
 CAMERAS = ("agentview", "eye_in_hand")
 SIZE = 32  # px: small images, the same code path as 84
@@ -104,7 +103,7 @@ def test_images_are_the_states_rendered(
         assert np.array_equal(view.read_rows(key, [0, 1]), value[:n])
     assert np.array_equal(view.episode_field("seed"), source.episodes["seed"][:2])
     images = {c: view.read_rows(f"obs/{c}_image", [0, 1]) for c in CAMERAS}
-    renderer = make_renderer(backend, task, "panda", SIZE, SIZE, CAMERAS)
+    renderer = envs.make_renderer(backend, task, "panda", SIZE, SIZE, CAMERAS)
     for im in images.values():
         assert im.shape == (n, SIZE, SIZE, 3) and im.dtype == np.uint8
         assert im[0].std() > 5  # a picture, not a flat colour

@@ -15,8 +15,8 @@ import pytest
 
 from envs.maniskill.source import read_trajectory_file
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.exporters import robomimic
 from mimicgen_pipe.segments import read_boundaries
+from mimicgen_pipe.source_files import robomimic_demos
 from mimicgen_pipe.taskspec import SubtaskSpec
 from mimicgen_pipe.yamlfile import load_yaml
 
@@ -154,7 +154,7 @@ def robomimic_file(path: Path, demos: int = 2) -> Path:
 
 
 def test_a_valid_robomimic_file_reads(tmp_path):
-    demos = robomimic.read(robomimic_file(tmp_path / "d.hdf5", 3), "pybullet", "stack")
+    demos = robomimic_demos(robomimic_file(tmp_path / "d.hdf5", 3), "pybullet", "stack")
     assert [(d.name, d.seed) for d in demos] == [("demo_0", 0), ("demo_1", 1), ("demo_2", 2)]
 
 
@@ -195,7 +195,7 @@ def test_a_broken_robomimic_file_is_one_error(tmp_path, damage, expected):
     path = robomimic_file(tmp_path / "d.hdf5")
     damage(path)
     with pytest.raises(InputError) as exc:
-        robomimic.read(path, "pybullet", "stack")
+        robomimic_demos(path, "pybullet", "stack")
     assert re.search(expected, one_line(exc)), exc.value
 
 
@@ -259,7 +259,8 @@ def test_a_short_robomimic_file_stops_the_source_stage(tmp_path, monkeypatch):
 def test_a_maniskill_file_on_pybullet_stops_the_source_stage(tmp_path, monkeypatch):
     h5 = trajectory_file(tmp_path / "input")
     params = f"task: stack\nbackend: pybullet\nsource: {{num_demos: 1, from_file: {h5}}}\n"
-    with pytest.raises(InputError, match=r"source\.from_file: .*demo\.h5: ManiSkill trajectory"):
+    own = r"source\.from_file: .*demo\.h5: backend pybullet reads no source file format of its own"
+    with pytest.raises(InputError, match=own):
         run_source(tmp_path, monkeypatch, params)
 
 

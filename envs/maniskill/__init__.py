@@ -3,8 +3,10 @@ envs/maniskill/tasks/. Imports no simulator: ManiSkill is imported when an env i
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
+from envs.maniskill.tasks import CONTROL  # noqa: F401 (the back end's, contracts.Backend)
 from envs.maniskill.tasks import ROBOTS as PANDA_ROBOTS
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.registry import choices, load
@@ -12,7 +14,6 @@ from mimicgen_pipe.registry import choices, load
 # the Panda (envs/maniskill/env.py) and the xArm6 with the Franka hand (envs/maniskill/xarm6.py)
 ROBOTS = (*PANDA_ROBOTS, "xarm6")
 PLANNER_ROBOTS = ("panda",)  # envs/maniskill/planner.py plans with the Panda's URDF
-CONTROL = ("pd_ee_delta_pose", 20)  # every arm's controller here, and its rate [Hz]
 
 
 def check_robot(robot: str) -> None:
@@ -51,6 +52,13 @@ def make_env(task: str, robot: str = "panda", lean_step: bool = True):
     return ManiSkillEnv(task, robot, lean_step)
 
 
+def make_renderer(task: str, robot: str, width: int, height: int, cameras: Sequence[str]):
+    """envs/maniskill/render.py's Renderer (SAPIEN's CPU renderer)."""
+    from envs.maniskill.render import Renderer
+
+    return Renderer(task, robot, width, height, cameras)
+
+
 def check_batched(task: str, robot: str, num_envs: int, sim_backend: str | None) -> None:
     """InputError for a batch ManiSkill cannot run (envs/maniskill/batch.py)."""
     from envs.maniskill.batch import check_batched
@@ -75,10 +83,18 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     return source.source_episodes(env, num_demos, seed, from_file, work_dir)
 
 
+def source_file_episodes(path: str, task: str) -> int:
+    """The number of episodes of a ManiSkill trajectory file (``.h5`` with its ``.json``),
+    read and checked whole (envs/maniskill/source.py)."""
+    from envs.maniskill.source import read_trajectory_file
+
+    return len(read_trajectory_file(path, task))
+
+
 def scripted_episodes(env, num_demos: int, seed: int, from_file: str | None):
     """Up to ``num_demos`` demos of ``env.demonstrate`` from reset seeds seed, seed + 1, ...
     (at most 10 per demo wanted), the seeds it failed on, and the seeds tried."""
-    from envs import SourceEpisode
+    from mimicgen_pipe.contracts import SourceEpisode
 
     if from_file is not None:
         raise InputError(f"source.from_file: task {env.spec.name} records its own demos only")

@@ -1,5 +1,5 @@
 """ManiSkill's batched simulation as the batched form of the env protocol
-(mimicgen_pipe.batched.BatchEnv): one ManiSkill env holding ``num_envs`` scenes, stepped
+(mimicgen_pipe.contracts.BatchEnv): one ManiSkill env holding ``num_envs`` scenes, stepped
 together by ManiSkill's own ``env.step`` and reset one scene at a time by its partial reset.
 
 On ``physx_cuda`` the scenes live on the GPU, thousands in one process. On ``physx_cpu``

@@ -13,10 +13,9 @@ from mani_skill.utils.registration import REGISTERED_ENVS, register_env  # noqa:
 from mani_skill.utils.structs.pose import Pose  # noqa: E402
 
 from envs import load_task  # noqa: E402
-from envs.maniskill import CONTROL, lean  # noqa: E402
-from envs.maniskill.lean import LeanStep  # noqa: E402
+from envs.maniskill.lean import LeanStep, is_grasping  # noqa: E402
 from envs.maniskill.planner import TransitPlanner  # noqa: E402
-from envs.maniskill.tasks import ROBOTS, ManiSkillTask  # noqa: E402
+from envs.maniskill.tasks import CONTROL, ROBOTS, ManiSkillTask  # noqa: E402
 from mimicgen_pipe import poses  # noqa: E402
 from mimicgen_pipe.controller import (  # noqa: E402
     DeltaPoseController,
@@ -359,7 +358,7 @@ class ManiSkillEnv:
             self._planner = TransitPlanner(self._u)
         actor = {o: getattr(self._u, a) for o, a in self.task.objects.items()}
         objects = {a.name: a for a in actor.values()}
-        held = {name: a for name, a in objects.items() if lean.is_grasping(self._u, a)}
+        held = {name: a for name, a in objects.items() if is_grasping(self._u, a)}
         # the arm works on the table and on the objects subtasks refer to: the planner keeps
         # its clearance from everything else
         worked = {n for n in self._u.scene.actors if n.startswith("table")}

@@ -334,7 +334,7 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     """The motion-planning demonstrator's demos from reset seeds seed, seed + 1, ... (or
     ``from_file``'s) as SourceEpisodes, the number dropped (failed plans, and plans
     ManiSkill's converter could not turn into pd_ee_delta_pose), and the seeds tried."""
-    from envs import SourceEpisode
+    from mimicgen_pipe.contracts import SourceEpisode
 
     def episodes(eps: list[TrajectoryFileEpisode]) -> list:
         return [SourceEpisode(ep.seed, initial_state(env, ep), ep.actions) for ep in eps]

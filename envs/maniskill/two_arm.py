@@ -1,5 +1,5 @@
 """A ManiSkill task with two robots (ManiSkill's multi-agent envs, e.g. TwoRobotStackCube-v1)
-as an env of the protocol's several-arm form (mimicgen_pipe.generation.MultiArmEnv): one CPU
+as an env of the protocol's several-arm form (mimicgen_pipe.contracts.MultiArmEnv): one CPU
 env, ManiSkill's own step and evaluation, each arm of the task's spec one of ManiSkill's
 agents (``task.arm_agents``), a Panda under pd_ee_delta_pose."""
 
@@ -25,7 +25,7 @@ from mimicgen_pipe.errors import InputError  # noqa: E402
 
 
 class ManiSkillArm:
-    """One agent of a two-robot ManiSkill env as an arm (mimicgen_pipe.generation.ArmEnv).
+    """One agent of a two-robot ManiSkill env as an arm (mimicgen_pipe.contracts.ArmEnv).
     Poses are 4x4 in the world frame [m]; its actions are ManiSkill's normalised
     pd_ee_delta_pose actions in the agent's root frame."""
 

@@ -4,13 +4,12 @@ envs/pybullet/tasks/."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
-from envs.pybullet.robots import ROBOTS, robot_spec, robot_urdf_text
+from envs.pybullet.robots import CONTROL, ROBOTS, robot_spec, robot_urdf_text
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.registry import choices, load
-
-CONTROL = ("ee_delta_pose", 20)  # every arm's controller here, and its rate [Hz]
 
 
 def check_robot(robot: str) -> None:
@@ -42,14 +41,21 @@ def make_env(task: str, robot: str = "panda", lean_step: bool = True):
     return PyBulletEnv(task, robot)
 
 
+def make_renderer(task: str, robot: str, width: int, height: int, cameras: Sequence[str]):
+    """envs/pybullet/render.py's Renderer (PyBullet's TinyRenderer)."""
+    from envs.pybullet.render import Renderer
+
+    return Renderer(task, robot, width, height, cameras)
+
+
 def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_dir: Path):
     """The scripted demonstrator's first ``num_demos`` successful demos from reset seeds
     seed, seed + 1, ... (at most 10 x num_demos tries), the number of failures and the
     seeds tried."""
     from tqdm import tqdm
 
-    from envs import SourceEpisode
     from envs.pybullet.demos import demonstrate
+    from mimicgen_pipe.contracts import SourceEpisode
 
     if from_file is not None:
         raise InputError(
@@ -73,11 +79,13 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
 
 
 __all__ = [
+    "CONTROL",
     "ROBOTS",
     "cameras",
     "check_robot",
     "load_task",
     "make_env",
+    "make_renderer",
     "source_episodes",
     "task_names",
 ]

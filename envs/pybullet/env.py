@@ -11,8 +11,8 @@ from pybullet_utils.bullet_client import BulletClient
 
 from envs import load_task
 from envs._urdf import FINGER_JOINTS, FINGER_OPEN
-from envs.pybullet import CONTROL
 from envs.pybullet.robots import (
+    CONTROL,
     HOME_TCP,
     TCP_LINK,
     robot_chain,

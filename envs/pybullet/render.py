@@ -38,10 +38,10 @@ class Renderer(CameraRenderer):
         height: int,
         cameras: Sequence[str] = (VIDEO,),
     ) -> None:
-        from envs.pybullet import make_env
+        from envs.pybullet.env import PyBulletEnv
 
         super().__init__(cameras)
-        self._env = make_env(task, robot)
+        self._env = PyBulletEnv(task, robot)
         self._size = (width, height)
         self._video = (
             p.computeViewMatrix(EYE, TARGET, [0, 0, 1]),

@@ -25,6 +25,7 @@ from envs._urdf import PANDA_URDF, add_fixed_joint, franka_hand, load_urdf, urdf
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.kinematics import Chain
 
+CONTROL = ("ee_delta_pose", 20)  # every arm's controller here, and its rate [Hz]
 TCP_LINK = "panda_grasptarget"
 # home TCP pose in the robot base frame: 0.45 m ahead, 0.25 m up, z axis pointing down
 HOME_TCP = np.array(

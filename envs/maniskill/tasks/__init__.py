@@ -20,6 +20,7 @@ PANDA_BASE_XY = (-0.615, 0.0)  # where ManiSkill's table-top tasks put the Panda
 # [m] horizontally from the base: beyond ~0.78 m the Panda cannot reach the table top-down
 PANDA_REACH = 0.76
 ROBOTS = ("panda",)
+CONTROL = ("pd_ee_delta_pose", 20)  # every arm's controller here, and its rate [Hz]
 CREATION_SEED = 2022  # the seed ManiSkill builds every env's scene with at creation
 
 
@@ -33,17 +34,17 @@ def cube_on_cube_evaluate(env) -> dict[str, bool]:
     """StackCube-v1's signals and success read straight from SAPIEN (the lean step's)."""
     import numpy as np
 
-    from envs.maniskill import lean
+    from envs.maniskill.lean import is_grasping, is_static, pose
 
     f32 = np.float32
-    offset = lean.pose(env.cubeA)[0] - lean.pose(env.cubeB)[0]
+    offset = pose(env.cubeA)[0] - pose(env.cubeB)[0]
     half = env.cube_half_size.numpy()
     on = bool(
         np.linalg.norm(offset[:2]) <= np.linalg.norm(half[:2]) + f32(0.005)
         and abs(offset[2] - half[2] * 2) <= f32(0.005)
     )
-    grasped = lean.is_grasping(env, env.cubeA)
-    static = lean.is_static(env.cubeA, lin_thresh=1e-2, ang_thresh=0.5)
+    grasped = is_grasping(env, env.cubeA)
+    static = is_static(env.cubeA, lin_thresh=1e-2, ang_thresh=0.5)
     return {"grasp_cubeA": grasped, "cubeA_on_cubeB": on, "success": on and static and not grasped}
 
 
