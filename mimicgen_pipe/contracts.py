@@ -163,7 +163,7 @@ class Backend(Protocol):
       ``make_batch(task, robot, num_envs, sim_backend)``;
     - ``source_file_episodes(path, task)``: the number of episodes of a source file in a
       format of its own (source.from_file), read and checked whole before any simulator
-      starts (robomimic files are read on every back end: mimicgen_pipe/source_files.py).
+      starts (robomimic files are read on every back end: mimicgen_pipe/robomimic_source.py).
 
     Back ends draw the scenes of their reset variants with mimicgen_pipe.reset_variants.
     """

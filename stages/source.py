@@ -7,7 +7,7 @@ import functools
 from pathlib import Path
 
 import envs
-from mimicgen_pipe import layout, source_files
+from mimicgen_pipe import layout, robomimic_source, source_files
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set, store_kind
@@ -31,8 +31,8 @@ def check_source_file(params: Params, params_path: str) -> int:
     num_demos are used)."""
     p = params.source
     assert p.from_file is not None
-    if source_files.is_robomimic_file(p.from_file):
-        n = len(source_files.robomimic_demos(p.from_file, params.backend, params.task))
+    if robomimic_source.is_robomimic_file(p.from_file):
+        n = len(robomimic_source.read(p.from_file, params.backend, params.task))
     else:
         n = envs.source_file_episodes(params.backend, p.from_file, params.task)
     if n is None:

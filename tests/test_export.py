@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 import pytest
 
-from mimicgen_pipe import exporters, source_files
+from mimicgen_pipe import exporters, robomimic_source
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.segments import gripper_events, read_boundaries
 from mimicgen_pipe.store import read_store, store_cameras, write_store
@@ -322,13 +322,13 @@ def test_subtask_labels_come_from_subtask_ends_or_term_signals(tmp_path):
 def test_robomimic_file_reads_back_as_source_demos(tmp_path):
     store = synthetic_store(tmp_path / "g.zarr")
     path, _ = exporters.write(store, "robomimic", tmp_path, export_info(store))
-    demos = source_files.robomimic_demos(path, "maniskill", "stack_cube")
+    demos = robomimic_source.read(path, "maniskill", "stack_cube")
     assert [d.seed for d in demos] == [100, 101, 102]
     for i, d in enumerate(demos):
         np.testing.assert_array_equal(d.actions, store.episode(i)["actions"])
         np.testing.assert_array_equal(d.initial_state, store.episode(i)["env_state"][0])
     with pytest.raises(InputError, match="expected 'pybullet'/'stack_cube'"):
-        source_files.robomimic_demos(path, "pybullet", "stack_cube")
+        robomimic_source.read(path, "pybullet", "stack_cube")
 
 
 @pytest.mark.parametrize(

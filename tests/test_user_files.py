@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from envs.maniskill.source import read_trajectory_file
+from mimicgen_pipe import robomimic_source
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.segments import read_boundaries
-from mimicgen_pipe.source_files import robomimic_demos
 from mimicgen_pipe.taskspec import SubtaskSpec
 from mimicgen_pipe.yamlfile import load_yaml
 
@@ -154,7 +154,7 @@ def robomimic_file(path: Path, demos: int = 2) -> Path:
 
 
 def test_a_valid_robomimic_file_reads(tmp_path):
-    demos = robomimic_demos(robomimic_file(tmp_path / "d.hdf5", 3), "pybullet", "stack")
+    demos = robomimic_source.read(robomimic_file(tmp_path / "d.hdf5", 3), "pybullet", "stack")
     assert [(d.name, d.seed) for d in demos] == [("demo_0", 0), ("demo_1", 1), ("demo_2", 2)]
 
 
@@ -195,7 +195,7 @@ def test_a_broken_robomimic_file_is_one_error(tmp_path, damage, expected):
     path = robomimic_file(tmp_path / "d.hdf5")
     damage(path)
     with pytest.raises(InputError) as exc:
-        robomimic_demos(path, "pybullet", "stack")
+        robomimic_source.read(path, "pybullet", "stack")
     assert re.search(expected, one_line(exc)), exc.value
 
 

@@ -1,5 +1,5 @@
 """robomimic HDF5, with MimicGen's per-demo ``datagen_info`` (the source stage reads such a
-file back as source demos: mimicgen_pipe/source_files.py).
+file back as source demos: mimicgen_pipe/robomimic_source.py).
 
 Layout written (robomimic's dataset schema; MimicGen's generated files add datagen_info)::
 
