@@ -4,8 +4,8 @@ source selection, action noise, and one generation attempt over an env protocol 
 from __future__ import annotations
 
 from collections.abc import Generator, Mapping
-from dataclasses import dataclass
-from typing import cast
+from dataclasses import dataclass, replace
+from typing import Literal, cast
 
 import numpy as np
 
@@ -184,18 +184,106 @@ def run_attempt(
 
 AttemptActions = Generator[np.ndarray, None, Attempt]
 
+# why an attempt stopped before its last subtask: a target the arm cannot reach (IK), or a
+# transit the motion planner cannot find
+Stop = Literal["ik", "planner"]
 
-@dataclass
-class _Segment:
-    """An arm's transformed segment being executed: subtask ``index`` (the task's order),
-    its targets (K, 4, 4) world, gripper commands (K,), action noise (K, 6), and the next
-    step ``k``."""
 
-    index: int
+@dataclass(frozen=True)
+class SourceSegments:
+    """Where the source demos' subtask segments lie in one attempt, the attempt's term offsets
+    applied. starts: (N,) each demo's first step in the concatenated source arrays. bounds:
+    arm -> (N, M_arm, 2) [start, end) steps of the arm's segments, relative to the demo's
+    start. order: arm -> its subtasks' indices, in the task's order."""
+
+    sources: SourceDemos
+    starts: np.ndarray
+    bounds: Mapping[str, np.ndarray]
+    order: Mapping[str, tuple[int, ...]]
+
+    def steps(self, arm: str, subtask: int, demo: int) -> np.ndarray:
+        """(2,) [start, end) of source demo ``demo``'s segment of ``subtask`` (one of
+        ``arm``'s), in the concatenated source arrays."""
+        return self.starts[demo] + self.bounds[arm][demo, self.order[arm].index(subtask)]
+
+    def first_steps(self, arm: str, subtask: int) -> np.ndarray:
+        """(N,) every source demo's first step of its segment of ``subtask``, in the
+        concatenated source arrays."""
+        return self.starts + self.bounds[arm][:, self.order[arm].index(subtask), 0]
+
+
+@dataclass(frozen=True)
+class AttemptSetting:
+    """What stays fixed through one attempt: the env and each arm's view of it, the task, the
+    method's knobs, the source segments, and the task's constraints by subtask index (the
+    task's order): ``after[i]``, the subtasks that must end before i starts (sequential);
+    ``partner[i]``, the subtask that starts and ends with i (coordinated), both ways."""
+
+    env: Env
+    arms: Mapping[str, ArmEnv]
+    spec: TaskSpec
+    config: GenerationConfig
+    segments: SourceSegments
+    after: Mapping[int, list[int]]
+    partner: Mapping[int, int]
+
+
+@dataclass(frozen=True)
+class ArmPath:
+    """One arm's way through one subtask, a row per control step: the transit, then the
+    transformed source segment. targets: (K, 4, 4) TCP target poses, world frame [m].
+    grips: (K,) gripper commands, as the source demos' actions give them."""
+
+    targets: np.ndarray
+    grips: np.ndarray
+
+
+@dataclass(frozen=True)
+class ArmPlan:
+    """What one arm executes for subtask ``subtask`` (the task's order): its path's ``targets``
+    (K, 4, 4) TCP target poses, world frame [m], and ``grips`` (K,), step-aligned with a
+    coordinated partner's, and ``noise`` (K, 6), the action noise on each step's translation
+    and rotation."""
+
+    subtask: int
     targets: np.ndarray
     grips: np.ndarray
     noise: np.ndarray
+
+
+@dataclass(frozen=True)
+class ArmState:
+    """One arm during an attempt. plan: what it executes, None while it holds; k: the plan's
+    next step. hold: the TCP target pose (4, 4), world frame [m], and gripper command it holds,
+    where its last plan ended (or, before its first, where it began). done: how many of its
+    subtasks have ended. demo: the source demo it follows, -1 before its first subtask."""
+
+    plan: ArmPlan | None = None
     k: int = 0
+    hold: tuple[np.ndarray, float] | None = None
+    done: int = 0
+    demo: int = -1
+
+
+@dataclass(frozen=True)
+class AttemptState:
+    """Where an attempt stands. arms: each arm's state, in the task's arm order. Per subtask
+    (the task's order): ``chosen``, the source demo it follows (-1: not started), and
+    ``started``, the order it started in (M: never). reached: subtasks whose term signal was
+    on during their segment; ended: subtasks whose segment has ended. stop: why the attempt
+    stopped early, None while it runs on."""
+
+    arms: Mapping[str, ArmState]
+    chosen: tuple[int, ...]
+    started: tuple[int, ...]
+    reached: frozenset[int] = frozenset()
+    ended: frozenset[int] = frozenset()
+    stop: Stop | None = None
+
+    @property
+    def active(self) -> dict[str, int]:
+        """Arm -> the subtask it executes, for every arm not holding."""
+        return {arm: s.plan.subtask for arm, s in self.arms.items() if s.plan is not None}
 
 
 def attempt_actions(
@@ -223,14 +311,46 @@ def attempt_actions(
     (reachable) stops there, as an IK failure of that subtask; with planned transit, one
     whose transit the planner cannot find stops there too, as a planner failure of that
     subtask. Everything drawn (scene, source demos, offsets, noise) comes from ``seed``
-    alone, in the order the subtasks start."""
+    alone, in the order the subtasks start.
+
+    The steps: start_subtasks, where the constraint gate (constraint_gate) lets subtasks
+    start and plan_subtask plans each (the reference object's estimated pose, source
+    selection, the transformed segment, the transit, the reach check, action noise); then
+    execute, one next_action a control step until a plan ends; then attempt_outcome."""
     rng = np.random.default_rng(seed)
     pose_rng = generation_rng(seed)
     env.reset(seed=seed, variant=variant)
     initial_state = env.get_state()
     obj_now = env.object_poses()
     initial_object_poses = np.stack([obj_now[o] for o in spec.objects])
-    offsets = np.array(
+    setting = attempt_setting(env, sources, spec, config, term_offsets(spec, rng))
+    n = len(spec.subtasks)
+    state = AttemptState(dict.fromkeys(spec.arms, ArmState()), (-1,) * n, (n,) * n)
+    recorder = StepRecorder(spec.objects, spec.arms)
+    while True:
+        state = start_subtasks(setting, state, obj_now, rng, pose_rng)
+        if state.stop is not None or not state.active:
+            break  # stopped, or every arm has done its subtasks (a checked spec cannot stall)
+        state, obj_now = yield from execute(setting, state, obj_now, recorder)
+    success, failed = attempt_outcome(setting, state)
+    return Attempt(
+        seed,
+        recorder.arrays(),
+        success,
+        failed,
+        state.stop == "ik",
+        np.array(state.chosen, dtype=np.int64),
+        initial_state,
+        initial_object_poses,
+        state.stop == "planner",
+    )
+
+
+def term_offsets(spec: TaskSpec, rng: np.random.Generator) -> np.ndarray:
+    """(K,) the attempt's offsets [control steps] to the detected subtask ends, one per
+    subtask with a term signal (TaskSpec.ending_subtasks), each drawn from its subtask's
+    term_offset_range."""
+    return np.array(
         [
             int(rng.integers(spec.subtasks[i].term_offset_range[0],
                              spec.subtasks[i].term_offset_range[1] + 1))
@@ -238,166 +358,335 @@ def attempt_actions(
         ],
         dtype=np.int64,
     )  # fmt: skip
-    starts = sources.episode_starts
-    bounds = sources.segment_bounds(spec, offsets)  # arm -> (N, M_arm, 2)
-    arms = arm_envs(env, spec.arms)
-    order = {arm: spec.arm_indices(arm) for arm in spec.arms}  # arm -> its subtasks' indices
+
+
+def attempt_setting(
+    env: Env, sources: SourceDemos, spec: TaskSpec, config: GenerationConfig, offsets: np.ndarray
+) -> AttemptSetting:
+    """An attempt's fixed setting on ``env``, with its term ``offsets`` (term_offsets)."""
+    segments = SourceSegments(
+        sources,
+        sources.episode_starts,
+        sources.segment_bounds(spec, offsets),
+        {arm: spec.arm_indices(arm) for arm in spec.arms},
+    )
     after, partner = constraint_maps(spec)
+    return AttemptSetting(env, arm_envs(env, spec.arms), spec, config, segments, after, partner)
 
-    recorder = StepRecorder(spec.objects, spec.arms)
-    chosen = np.full(len(spec.subtasks), -1, dtype=np.int64)
-    reached = np.zeros(len(spec.subtasks), dtype=bool)
-    ended = np.zeros(len(spec.subtasks), dtype=bool)
-    demo = dict.fromkeys(spec.arms, -1)
-    running: dict[str, _Segment | None] = dict.fromkeys(spec.arms)
-    done = dict.fromkeys(spec.arms, 0)  # subtasks each arm has finished
-    hold: dict[str, tuple[np.ndarray, float]] = {}  # a waiting arm's target and gripper
-    started = np.full(len(spec.subtasks), len(spec.subtasks))  # the order subtasks started in
-    ik_failed = planner_failed = False
 
-    def waiting(arm: str) -> int | None:
-        """The subtask ``arm`` starts next if it may start now, else None."""
-        if running[arm] is not None or done[arm] == len(order[arm]):
-            return None
-        i = order[arm][done[arm]]
-        return i if all(ended[j] for j in after[i]) else None
+def start_subtasks(
+    setting: AttemptSetting,
+    state: AttemptState,
+    obj_now: Mapping[str, np.ndarray],
+    rng: np.random.Generator,
+    pose_rng: np.random.Generator,
+) -> AttemptState:
+    """Start every subtask the constraint gate lets start now, arm by arm in the task's order
+    (a coordinated pair together), each planned from the object poses ``obj_now`` (world
+    frame); the first that cannot start stops the attempt."""
+    for arm in setting.spec.arms:
+        group = constraint_gate(setting, state, arm)
+        if group:
+            state = plan_subtask(setting, state, group, obj_now, rng, pose_rng)
+            if state.stop is not None:
+                break
+    return state
 
-    def segment(arm: str, i: int, ref_now: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
-        """Subtask i's segment of source demo j, carried to ``ref_now``: targets, grippers."""
-        sub = spec.subtasks[i]
-        s, e = starts[j] + bounds[arm][j, order[arm].index(i)]
-        seg = transform_segment(
-            sources.target_poses[arm][s:e], sources.object_poses[sub.reference_object][s], ref_now
-        )
-        return seg, sources.gripper[arm][s:e]
 
-    def start(group: list[tuple[str, int]]) -> bool:
-        """Start subtasks ``group`` (one, or coordinated ones) on their arms; False when an
-        arm cannot reach its targets or no transit is found."""
-        nonlocal ik_failed, planner_failed
-        lead_arm, lead = group[0]
-        sub = spec.subtasks[lead]
-        # the reference object's pose as a pose estimator reports it (paper T); the
-        # simulator's true poses are untouched, and they are what gets recorded
-        ref_now = perturb_pose(obj_now[sub.reference_object], config.pose_noise, pose_rng)
-        if demo[lead_arm] < 0 or config.per_subtask or len(group) > 1:
-            seg_starts = starts + bounds[lead_arm][:, order[lead_arm].index(lead), 0]
-            src_objects = sources.object_poses[sub.reference_object][seg_starts]
-            candidates = Candidates(
-                src_objects,
-                ref_now,
-                transform_segment(sources.target_poses[lead_arm][seg_starts], src_objects, ref_now),
-                arms[lead_arm].eef_pose(),
-            )
-            picked = select_source(config.selection, candidates, rng, config.nn_k)
-            for arm, _ in group:
-                demo[arm] = picked
-        plans = []
-        for arm, i in group:
-            chosen[i] = demo[arm]
-            started[i] = int(np.count_nonzero(chosen >= 0))
-            seg, grip = segment(arm, i, ref_now, demo[arm])
-            if config.transit == "planned":
-                k = approach_start(seg, ref_now, config.planner.approach_distance)
-                seg, grip = seg[k:], grip[k:]
-                path, _ = cast(PlanningEnv, env).plan_transit(seg[0], config.planner, rng)
-                if path is None:
-                    planner_failed = True
-                    return False
-                interp = np.concatenate([path, np.repeat(seg[:1], config.n_fixed, axis=0)])
-            else:
-                eef = arms[arm].eef_pose()
-                interp = interpolation(eef, seg[0], config.n_interp, config.n_fixed)
-            targets = np.concatenate([interp, seg])
-            grips = np.concatenate([np.full(len(interp), grip[0]), grip])
-            if not arms[arm].reachable(targets).all():
-                ik_failed = True
-                return False
-            plans.append((arm, i, targets, grips))
-        steps = max(len(t) for _, _, t, _ in plans)
-        for arm, i, targets, grips in plans:
-            # step-aligned: a coordinated segment shorter than its partner's holds its end
-            pad = steps - len(targets)
-            targets = np.concatenate([targets, np.repeat(targets[-1:], pad, axis=0)])
-            grips = np.concatenate([grips, np.repeat(grips[-1:], pad)])
-            sigma = np.full(len(targets), config.action_noise)
-            radius = spec.subtasks[i].noise_free_radius
-            if radius is not None:
-                near = np.linalg.norm(targets[:, :3, 3] - ref_now[:3, 3], axis=-1)
-                sigma[near <= radius] = 0.0
-            running[arm] = _Segment(i, targets, grips, action_noise(sigma, rng))
-        return True
+def next_subtask(setting: AttemptSetting, state: AttemptState, arm: str) -> int | None:
+    """The subtask ``arm`` may start now: its next, once it holds and every subtask that must
+    end before that one has ended; None otherwise, and once it has done its subtasks."""
+    s, order = state.arms[arm], setting.segments.order[arm]
+    if s.plan is not None or s.done == len(order):
+        return None
+    i = order[s.done]
+    return i if all(j in state.ended for j in setting.after[i]) else None
 
-    arm_list = list(arms.items())
-    starting = True  # at the start, and once a segment has ended: which arms may start
+
+def constraint_gate(
+    setting: AttemptSetting, state: AttemptState, arm: str
+) -> tuple[tuple[str, int], ...]:
+    """(arm, subtask) pairs that start now from ``arm``: its next subtask (next_subtask),
+    joined by its coordinated partner on the partner's arm, which must be ready too; none
+    while either waits (the arm holds its pose)."""
+    i = next_subtask(setting, state, arm)
+    if i is None:
+        return ()
+    if i not in setting.partner:
+        return ((arm, i),)
+    j = setting.partner[i]
+    other = setting.spec.subtasks[j].arm
+    if next_subtask(setting, state, other) != j:
+        return ()
+    return ((arm, i), (other, j))
+
+
+def plan_subtask(
+    setting: AttemptSetting,
+    state: AttemptState,
+    group: tuple[tuple[str, int], ...],
+    obj_now: Mapping[str, np.ndarray],
+    rng: np.random.Generator,
+    pose_rng: np.random.Generator,
+) -> AttemptState:
+    """Start subtasks ``group`` ((arm, subtask) pairs: one, or a coordinated pair) from the
+    object poses ``obj_now`` (world frame): estimate the reference object's pose, select a
+    source demo where one is due (paper M.3), then plan each arm's path (its transformed
+    segment after a transit, reach-checked) and, all found, execute them with action noise.
+    The state with the plans running, or stopped where a path cannot be had."""
+    lead_arm, lead = group[0]
+    config = setting.config
+    ref_pose = estimated_reference_pose(setting, lead, obj_now, pose_rng)
+    if state.arms[lead_arm].demo < 0 or config.per_subtask or len(group) > 1:
+        demo = select_source_demo(setting, lead_arm, lead, ref_pose, rng)
+        arms = {arm: replace(state.arms[arm], demo=demo) for arm, _ in group}
+        state = replace(state, arms={**state.arms, **arms})
+    paths = []
+    for arm, i in group:
+        state = subtask_started(state, i, state.arms[arm].demo)
+        path = arm_path(setting, arm, i, state.arms[arm].demo, ref_pose, rng)
+        if not isinstance(path, ArmPath):
+            return replace(state, stop=path)
+        paths.append((arm, i, path))
+    plans = noisy_plans(setting, paths, ref_pose, rng)
+    arms = {arm: replace(state.arms[arm], plan=plan, k=0) for arm, plan in plans.items()}
+    return replace(state, arms={**state.arms, **arms})
+
+
+def estimated_reference_pose(
+    setting: AttemptSetting,
+    subtask: int,
+    obj_now: Mapping[str, np.ndarray],
+    pose_rng: np.random.Generator,
+) -> np.ndarray:
+    """(4, 4) world pose [m] of ``subtask``'s reference object, as a pose estimator reports it
+    (paper T): its pose in ``obj_now`` with the attempt's pose noise. The simulator's true
+    poses are untouched, and they are what gets recorded."""
+    reference = setting.spec.subtasks[subtask].reference_object
+    return perturb_pose(obj_now[reference], setting.config.pose_noise, pose_rng)
+
+
+def select_source_demo(
+    setting: AttemptSetting, arm: str, subtask: int, ref_pose: np.ndarray, rng: np.random.Generator
+) -> int:
+    """The source demo to follow from ``subtask`` (one of ``arm``'s) on, as the selection
+    strategy picks it (paper M.3) from every demo's segment of it: the reference object's
+    pose at the segment's start, its pose ``ref_pose`` (4, 4) now, the segments' first targets
+    transformed to it, and the arm's TCP pose now, all world frame [m]."""
+    sources = setting.segments.sources
+    first = setting.segments.first_steps(arm, subtask)
+    src_objects = sources.object_poses[setting.spec.subtasks[subtask].reference_object][first]
+    candidates = Candidates(
+        src_objects,
+        ref_pose,
+        transform_segment(sources.target_poses[arm][first], src_objects, ref_pose),
+        setting.arms[arm].eef_pose(),
+    )
+    return select_source(setting.config.selection, candidates, rng, setting.config.nn_k)
+
+
+def subtask_started(state: AttemptState, subtask: int, demo: int) -> AttemptState:
+    """``state`` with ``subtask`` following source demo ``demo``, started after all that have."""
+    chosen = tuple(demo if k == subtask else c for k, c in enumerate(state.chosen))
+    count = sum(c >= 0 for c in chosen)
+    started = tuple(count if k == subtask else s for k, s in enumerate(state.started))
+    return replace(state, chosen=chosen, started=started)
+
+
+def arm_path(
+    setting: AttemptSetting,
+    arm: str,
+    subtask: int,
+    demo: int,
+    ref_pose: np.ndarray,
+    rng: np.random.Generator,
+) -> ArmPath | Stop:
+    """``arm``'s path through ``subtask``: source demo ``demo``'s segment transformed to the
+    reference object's pose ``ref_pose`` (4, 4), world frame [m] (paper L), after the
+    transit to its first target; with planned transit the segment starts at its approach
+    (mimicgen_pipe.transit.approach_start). "planner" where no transit is found, "ik" where
+    the arm cannot reach one of the targets (the reach check)."""
+    segment, grips = transformed_segment(setting, arm, subtask, demo, ref_pose)
+    if setting.config.transit == "planned":
+        k = approach_start(segment, ref_pose, setting.config.planner.approach_distance)
+        segment, grips = segment[k:], grips[k:]
+    transit = transit_segment(setting, arm, segment[0], rng)
+    if transit is None:
+        return "planner"
+    targets = np.concatenate([transit, segment])
+    grips = np.concatenate([np.full(len(transit), grips[0]), grips])
+    if not setting.arms[arm].reachable(targets).all():  # the reach check: IK for every target
+        return "ik"
+    return ArmPath(targets, grips)
+
+
+def transformed_segment(
+    setting: AttemptSetting, arm: str, subtask: int, demo: int, ref_pose: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Source demo ``demo``'s segment of ``subtask`` carried to the reference object's pose
+    ``ref_pose`` (4, 4), world frame [m] (paper L): its TCP targets (K, 4, 4), world frame,
+    and its gripper commands (K,)."""
+    sources = setting.segments.sources
+    s, e = setting.segments.steps(arm, subtask, demo)
+    src_object = sources.object_poses[setting.spec.subtasks[subtask].reference_object][s]
+    targets = transform_segment(sources.target_poses[arm][s:e], src_object, ref_pose)
+    return targets, sources.gripper[arm][s:e]
+
+
+def transit_segment(
+    setting: AttemptSetting, arm: str, start: np.ndarray, rng: np.random.Generator
+) -> np.ndarray | None:
+    """(K, 4, 4) TCP targets, world frame [m], from ``arm``'s TCP now to ``start`` (a
+    transformed segment's first target), then ``start`` held n_fixed steps: the interpolation
+    segment (paper M.2), or with planned transit the motion planner's path, drawn from
+    ``rng``; None where the planner finds none."""
+    config = setting.config
+    if config.transit != "planned":
+        eef = setting.arms[arm].eef_pose()
+        return interpolation(eef, start, config.n_interp, config.n_fixed)
+    path, _ = cast(PlanningEnv, setting.env).plan_transit(start, config.planner, rng)
+    if path is None:
+        return None
+    return np.concatenate([path, np.repeat(start[None], config.n_fixed, axis=0)])
+
+
+def noisy_plans(
+    setting: AttemptSetting,
+    paths: list[tuple[str, int, ArmPath]],
+    ref_pose: np.ndarray,
+    rng: np.random.Generator,
+) -> dict[str, ArmPlan]:
+    """Arm -> its plan, from each (arm, subtask, path) of subtasks that start together:
+    step-aligned (a coordinated path shorter than its partner's holds its last target), with
+    action noise drawn for every step (paper M.4), in ``paths``' order."""
+    steps = max(len(p.targets) for _, _, p in paths)
+    plans = {}
+    for arm, i, path in paths:
+        pad = steps - len(path.targets)
+        targets = np.concatenate([path.targets, np.repeat(path.targets[-1:], pad, axis=0)])
+        grips = np.concatenate([path.grips, np.repeat(path.grips[-1:], pad)])
+        radius = setting.spec.subtasks[i].noise_free_radius
+        sigma = noise_scales(targets, setting.config.action_noise, radius, ref_pose)
+        plans[arm] = ArmPlan(i, targets, grips, action_noise(sigma, rng))
+    return plans
+
+
+def noise_scales(
+    targets: np.ndarray, sigma: float, radius: float | None, ref_pose: np.ndarray
+) -> np.ndarray:
+    """(K,) the action noise's sigma at each of ``targets`` (K, 4, 4), world frame [m]:
+    ``sigma``, but 0 within ``radius`` [m] (None: nowhere) of the reference object's estimated
+    position (``ref_pose`` (4, 4), world frame)."""
+    scales = np.full(len(targets), sigma)
+    if radius is not None:
+        near = np.linalg.norm(targets[:, :3, 3] - ref_pose[:3, 3], axis=-1)
+        scales[near <= radius] = 0.0
+    return scales
+
+
+ExecutedSteps = Generator[np.ndarray, None, tuple[AttemptState, dict[str, np.ndarray]]]
+
+
+def execute(
+    setting: AttemptSetting,
+    state: AttemptState,
+    obj_now: dict[str, np.ndarray],
+    recorder: StepRecorder,
+) -> ExecutedSteps:
+    """Execute the running plans step by step until one of them ends: record each step
+    before its action (with the object poses ``obj_now`` it starts from, world frame), yield
+    the action and, once it is stepped, read the object poses again. Returns the state and
+    the object poses after the last step."""
+    env, active = setting.env, state.active
     while True:
-        if starting:
-            for arm in spec.arms:
-                i = waiting(arm)
-                if i is None:
-                    continue
-                group = [(arm, i)]
-                if i in partner:
-                    j = partner[i]
-                    other = spec.subtasks[j].arm
-                    if waiting(other) != j:
-                        continue  # its partner is not ready: hold
-                    group.append((other, j))
-                if not start(group):
-                    break
-            active = {arm: s.index for arm, s in running.items() if s is not None}
-            if ik_failed or planner_failed or not active:
-                break  # stopped, or every arm has done its subtasks (a checked spec cannot stall)
-            segments = [(arm, running[arm]) for arm in active]
-            starting = False
-        eefs, targets, parts = {}, {}, []
-        for arm, a in arm_list:
-            eefs[arm] = a.eef_pose()
-            seg = running[arm]
-            if seg is None:  # waiting: hold where its last segment ended (or where it began)
-                targets[arm], grip = hold.get(arm) or (eefs[arm], _first_grip(sources, arm))
-                hold[arm] = (targets[arm], grip)
-                parts.append(clip_actions(a.target_pose_to_action(targets[arm], grip)))
-                continue
-            targets[arm] = seg.targets[seg.k]
-            action = add_action_noise(a.target_pose_to_action(targets[arm], seg.grips[seg.k]),
-                                      seg.noise[seg.k])  # fmt: skip
-            parts.append(clip_actions(action))
-        action = (parts[0] if len(parts) == 1 else np.concatenate(parts)).astype(np.float32)
-        sig = recorder.record(env, eefs, obj_now, action, targets, active)
-        for i in active.values():
-            term = spec.subtasks[i].term_signal
-            if term is not None and sig[term]:
-                reached[i] = True
+        action, eefs, targets, state = next_action(setting, state)
+        signals = recorder.record(env, eefs, obj_now, action, targets, active)
+        state = signals_reached(setting, state, active, signals)
         yield action
         obj_now = env.object_poses()
-        for arm, seg in segments:
-            seg.k += 1
-            if seg.k < len(seg.targets):
-                continue
-            term = spec.subtasks[seg.index].term_signal
-            if term is not None and env.subtask_signals()[term]:
-                reached[seg.index] = True
-            ended[seg.index] = True
-            hold[arm] = (seg.targets[-1], float(seg.grips[-1]))
-            running[arm], done[arm] = None, done[arm] + 1
-            starting = True
-    success = not (ik_failed or planner_failed) and bool(env.is_success())
-    final = np.zeros(len(spec.subtasks), dtype=bool)
-    for arm in spec.arms:
-        final[order[arm][-1]], reached[order[arm][-1]] = True, success
-    failed = -1 if success else first_failure(reached, started, final)
-    return Attempt(
-        seed,
-        recorder.arrays(),
-        success,
-        failed,
-        ik_failed,
-        chosen,
-        initial_state,
-        initial_object_poses,
-        planner_failed,
-    )
+        state, ended = step_taken(setting, state)
+        if ended:
+            return state, obj_now
+
+
+def next_action(
+    setting: AttemptSetting, state: AttemptState
+) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray], AttemptState]:
+    """The next control step's action (float32, 7 per arm, the task's arm order) with each
+    arm's TCP pose and target now (arm -> (4, 4), world frame [m]): a running arm's
+    delta-pose action toward its plan's next target (paper M.1) plus that step's action
+    noise (M.4); a holding arm's toward the pose it holds. Also the state with the pose each
+    arm holding for the first time keeps (its TCP pose now, the source demos' first grip)."""
+    eefs, targets, parts, held = {}, {}, [], {}
+    for arm, a in setting.arms.items():
+        eefs[arm] = a.eef_pose()
+        s = state.arms[arm]
+        if s.plan is None:
+            hold = s.hold or (eefs[arm], _first_grip(setting.segments.sources, arm))
+            if s.hold is None:
+                held[arm] = replace(s, hold=hold)
+            targets[arm], grip = hold
+            parts.append(clip_actions(a.target_pose_to_action(targets[arm], grip)))
+            continue
+        targets[arm] = s.plan.targets[s.k]
+        action = add_action_noise(a.target_pose_to_action(targets[arm], s.plan.grips[s.k]),
+                                  s.plan.noise[s.k])  # fmt: skip
+        parts.append(clip_actions(action))
+    action = (parts[0] if len(parts) == 1 else np.concatenate(parts)).astype(np.float32)
+    if held:
+        state = replace(state, arms={**state.arms, **held})
+    return action, eefs, targets, state
+
+
+def signals_reached(
+    setting: AttemptSetting,
+    state: AttemptState,
+    active: Mapping[str, int],
+    signals: Mapping[str, bool],
+) -> AttemptState:
+    """``state`` with each running subtask of ``active`` (arm -> subtask) whose term signal
+    is on in ``signals`` reached."""
+    on = {
+        i
+        for i in active.values()
+        if (term := setting.spec.subtasks[i].term_signal) is not None and signals[term]
+    }
+    return replace(state, reached=state.reached | on) if on - state.reached else state
+
+
+def step_taken(setting: AttemptSetting, state: AttemptState) -> tuple[AttemptState, bool]:
+    """After a step: every running plan one step on. A plan past its last step ends its
+    subtask (reached when its term signal is on now) and its arm holds the plan's last target
+    and grip. Returns the state and whether any plan ended."""
+    arms, reached, ended = dict(state.arms), state.reached, state.ended
+    for arm, s in state.arms.items():
+        if s.plan is None:
+            continue
+        if s.k + 1 < len(s.plan.targets):
+            arms[arm] = replace(s, k=s.k + 1)
+            continue
+        i = s.plan.subtask
+        term = setting.spec.subtasks[i].term_signal
+        if term is not None and setting.env.subtask_signals()[term]:
+            reached |= {i}
+        ended |= {i}
+        hold = (s.plan.targets[-1], float(s.plan.grips[-1]))
+        arms[arm] = replace(s, plan=None, k=0, hold=hold, done=s.done + 1)
+    return replace(state, arms=arms, reached=reached, ended=ended), ended != state.ended
+
+
+def attempt_outcome(setting: AttemptSetting, state: AttemptState) -> tuple[bool, int]:
+    """Whether the attempt succeeded (it ran to its end and the task succeeds now) and the
+    subtask it failed (first_failure; -1 on success). Each arm's last subtask counts as
+    reached exactly when the attempt succeeded."""
+    success = state.stop is None and bool(setting.env.is_success())
+    n = len(setting.spec.subtasks)
+    reached = np.array([i in state.reached for i in range(n)], dtype=bool)
+    final = np.zeros(n, dtype=bool)
+    for order in setting.segments.order.values():
+        final[order[-1]], reached[order[-1]] = True, success
+    failed = -1 if success else first_failure(reached, np.array(state.started), final)
+    return success, failed
 
 
 def first_failure(reached: np.ndarray, started: np.ndarray, final: np.ndarray) -> int:
