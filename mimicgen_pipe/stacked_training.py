@@ -26,7 +26,14 @@ import torch
 from torch import nn
 
 from mimicgen_pipe.policy import BCRNN
-from mimicgen_pipe.training import SequenceData, TrainingRun, validation_windows
+from mimicgen_pipe.training_setup import (
+    SequenceData,
+    TrainConfig,
+    TrainingRun,
+    annealed_lr,
+    initial_policy,
+    validation_windows,
+)
 
 LOG_SQRT_2PI = 0.5 * math.log(2 * math.pi)
 WARMUP_STEPS = 3  # eager steps before a CUDA graph is captured (allocator and cuDNN warm-up)
@@ -145,7 +152,7 @@ def stacked_nll(
 class _Windows:
     """Every run's steps in one (N, D) array on the device, and each run's window draws:
     ``batch`` window starts uniform over the run's own steps, windows padded at episode ends
-    by repeating the last step (mimicgen_pipe.training.window_index)."""
+    by repeating the last step (mimicgen_pipe.training_setup.window_index)."""
 
     def __init__(
         self, datas: Sequence[SequenceData], width: int, seq_len: int, device: torch.device
@@ -174,7 +181,7 @@ class _Windows:
 def _validation(
     runs: Sequence[TrainingRun], width: int, device: torch.device
 ) -> tuple[torch.Tensor, ...]:
-    """Each run's fixed validation windows (training.validation_windows), padded to the
+    """Each run's fixed validation windows (training_setup.validation_windows), padded to the
     most windows by repeating its first: obs (M, V, T, D), actions, and a (M, V) weight that
     averages each run's own windows."""
     seq_len = runs[0].config.policy.seq_len
@@ -212,79 +219,23 @@ def train_stacked(
         raise ValueError(f"stacked runs need one schedule, got {sorted(map(str, configs))}")
     cfg = runs[0].config
     device = torch.device(cfg.device)
-    models = []
-    for r in runs:  # as train_policy: seed, then build, then normalise
-        torch.manual_seed(r.seed)
-        model = BCRNN(r.config.policy)
-        model.set_normalisation(r.train_data.obs.mean(0), r.train_data.obs.std(0))
-        models.append(model)
+    # each policy set up as train_policy sets it up: seed, then build, then normalise
+    models = [initial_policy(r.config.policy, r.train_data, r.seed) for r in runs]
     net = StackedBCRNN(models).to(device)
     width = max(net.obs_dims)
     torch.manual_seed(runs[0].seed)  # the stack's window draws
     data = _Windows([r.train_data for r in runs], width, cfg.policy.seq_len, device)
     val = _validation(runs, width, device) if all(r.val_data.n_episodes for r in runs) else None
-    cuda_graph = graph and device.type == "cuda"
-    opt = torch.optim.Adam(
-        net.parameters(),
-        lr=torch.tensor(cfg.lr, device=device) if cuda_graph else cfg.lr,
-        capturable=cuda_graph,
-    )
-    total_steps = cfg.epochs * cfg.steps_per_epoch
-    loss_sum = torch.zeros(len(runs), device=device)
-
-    def step() -> None:
-        obs, actions = data.draw(cfg.batch_size)
-        per_run = stacked_nll(*net(obs), actions).mean((1, 2))
-        per_run.sum().backward()  # each slice's gradient is its own mean loss's
-        opt.step()
-        loss_sum.add_(per_run.detach())
-
-    def set_lr(done: int) -> None:
-        if cfg.lr_schedule != "cosine":
-            return
-        low = cfg.lr / 100  # CosineAnnealingLR's closed form, as train_policy anneals
-        lr = low + (cfg.lr - low) * (1 + math.cos(math.pi * done / total_steps)) / 2
-        for group in opt.param_groups:
-            if isinstance(group["lr"], torch.Tensor):
-                group["lr"].fill_(lr)
-            else:
-                group["lr"] = lr
-
-    replay: Callable[[], None] | None = None
-    side = torch.cuda.Stream() if cuda_graph else None
+    steps = _StackSteps(net, data, cfg, graph and device.type == "cuda")
     history: list[list[dict[str, float]]] = [[] for _ in runs]
     t0 = time.perf_counter()
-    done = 0
     for epoch in range(1, cfg.epochs + 1):
         net.train()
-        for _ in range(cfg.steps_per_epoch):
-            if replay is None and cuda_graph and done >= WARMUP_STEPS:
-                replay = _capture(step, opt)  # None: capture failed, eager from here
-                cuda_graph = replay is not None
-            if replay is not None:
-                replay()
-            elif cuda_graph:  # warm-up before capture, on a side stream as capture wants
-                side.wait_stream(torch.cuda.current_stream())
-                with torch.cuda.stream(side):
-                    opt.zero_grad(set_to_none=True)
-                    step()
-                torch.cuda.current_stream().wait_stream(side)
-            else:
-                opt.zero_grad(set_to_none=True)
-                step()
-            done += 1
-            set_lr(done)
-        losses = (loss_sum / cfg.steps_per_epoch).tolist()
-        loss_sum.zero_()
-        vals = [float("nan")] * len(runs)
-        if val is not None:
-            net.eval()
-            with torch.no_grad():
-                obs, actions, weight = val
-                vals = (stacked_nll(*net(obs), actions).mean(-1) * weight).sum(1).tolist()
+        losses = steps.epoch()
+        vals = _validation_losses(net, val, len(runs))
         seconds = (time.perf_counter() - t0) / len(runs)
         rows = [
-            {"epoch": epoch, "step": done, "loss": lo, "val_loss": va, "seconds": seconds}
+            {"epoch": epoch, "step": steps.done, "loss": lo, "val_loss": va, "seconds": seconds}
             for lo, va in zip(losses, vals, strict=True)
         ]
         for h, row in zip(history, rows, strict=True):
@@ -298,6 +249,89 @@ def train_stacked(
         if late:
             break
     return history
+
+
+class _StackSteps:
+    """The stack's gradient steps: each draws every run's windows, runs the network forward
+    and backward, steps Adam and adds each run's loss to its sum. With ``cuda_graph``, the
+    first WARMUP_STEPS run eagerly on a side stream, then one step is captured as a CUDA graph
+    and replayed (eager steps from there where capture fails)."""
+
+    def __init__(
+        self, net: StackedBCRNN, data: _Windows, config: TrainConfig, cuda_graph: bool
+    ) -> None:
+        device = data.obs.device
+        self.net, self.data, self.config, self.cuda_graph = net, data, config, cuda_graph
+        self.opt = torch.optim.Adam(
+            net.parameters(),
+            lr=torch.tensor(config.lr, device=device) if cuda_graph else config.lr,
+            capturable=cuda_graph,
+        )
+        self.loss_sum = torch.zeros(len(net.obs_dims), device=device)
+        self.replay: Callable[[], None] | None = None
+        self.side = torch.cuda.Stream() if cuda_graph else None
+        self.done = 0  # gradient steps so far
+
+    def step(self) -> None:
+        """One gradient step of every run (what a CUDA graph captures)."""
+        obs, actions = self.data.draw(self.config.batch_size)
+        per_run = stacked_nll(*self.net(obs), actions).mean((1, 2))
+        per_run.sum().backward()  # each slice's gradient is its own mean loss's
+        self.opt.step()
+        self.loss_sum.add_(per_run.detach())
+
+    def next(self) -> None:
+        """The next gradient step, replayed, warmed up or eager; then the learning rate."""
+        if self.replay is None and self.cuda_graph and self.done >= WARMUP_STEPS:
+            self.replay = _capture(self.step, self.opt)  # None: capture failed, eager from here
+            self.cuda_graph = self.replay is not None
+        if self.replay is not None:
+            self.replay()
+        elif self.cuda_graph and self.side is not None:
+            # warm-up before capture, on a side stream as capture wants
+            self.side.wait_stream(torch.cuda.current_stream())
+            with torch.cuda.stream(self.side):
+                self.opt.zero_grad(set_to_none=True)
+                self.step()
+            torch.cuda.current_stream().wait_stream(self.side)
+        else:
+            self.opt.zero_grad(set_to_none=True)
+            self.step()
+        self.done += 1
+        _set_lr(self.opt, self.config, self.done)
+
+    def epoch(self) -> list[float]:
+        """An epoch's steps; each run's mean training loss over them."""
+        for _ in range(self.config.steps_per_epoch):
+            self.next()
+        losses = (self.loss_sum / self.config.steps_per_epoch).tolist()
+        self.loss_sum.zero_()
+        return losses
+
+
+def _set_lr(opt: torch.optim.Optimizer, config: TrainConfig, done: int) -> None:
+    """``opt``'s learning rate after ``done`` steps: annealed as train_policy anneals it
+    (annealed_lr), in place where the rate is a tensor (a CUDA graph reads it there)."""
+    if config.lr_schedule != "cosine":
+        return
+    lr = annealed_lr(config, done)
+    for group in opt.param_groups:
+        if isinstance(group["lr"], torch.Tensor):
+            group["lr"].fill_(lr)
+        else:
+            group["lr"] = lr
+
+
+def _validation_losses(
+    net: StackedBCRNN, val: tuple[torch.Tensor, ...] | None, n_runs: int
+) -> list[float]:
+    """Each run's mean NLL on its validation windows (_validation); NaN without them."""
+    if val is None:
+        return [float("nan")] * n_runs
+    net.eval()
+    with torch.no_grad():
+        obs, actions, weight = val
+        return (stacked_nll(*net(obs), actions).mean(-1) * weight).sum(1).tolist()
 
 
 def _schedule(run: TrainingRun) -> tuple:

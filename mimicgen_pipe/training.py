@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -24,29 +24,21 @@ from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.outputs import directory_kind
 from mimicgen_pipe.params import Params, TrainParams, training_params
 from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
+from mimicgen_pipe.stacked_training import train_stacked
+from mimicgen_pipe.training_setup import (
+    SequenceData,
+    TrainConfig,
+    TrainingRun,
+    initial_policy,
+    lr_scheduler,
+    validation_windows,
+    window_index,
+)
 
 if TYPE_CHECKING:
     from mimicgen_pipe.store import StoreView
 
 CHECKPOINT_VERSION = 1
-
-
-@dataclass(frozen=True)
-class SequenceData:
-    """Episodes concatenated: obs (N, D) float32, actions (N, A) float32, episode_ends (E,)
-    cumulative exclusive ends."""
-
-    obs: np.ndarray
-    actions: np.ndarray
-    episode_ends: np.ndarray
-
-    @property
-    def episode_starts(self) -> np.ndarray:
-        return np.concatenate([[0], self.episode_ends[:-1]]).astype(np.int64)
-
-    @property
-    def n_episodes(self) -> int:
-        return len(self.episode_ends)
 
 
 @dataclass(frozen=True)
@@ -59,24 +51,6 @@ class TrainingData:
     obs_dims: tuple[int, ...]
     action_dim: int
     attrs: Mapping[str, Any]
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """How one policy trains: ``policy``, the network (its architecture and observation
-    layout, as its checkpoints store it), and the schedule: Adam at ``lr``, constant or (with
-    ``lr_schedule`` "cosine") annealed to lr / 100 over the run; epochs x steps_per_epoch
-    gradient steps on batches of batch_size windows of policy.seq_len steps; a checkpoint
-    every checkpoint_every epochs (and at the last); on torch device ``device``."""
-
-    policy: PolicyConfig
-    batch_size: int
-    lr: float
-    epochs: int
-    steps_per_epoch: int
-    checkpoint_every: int
-    lr_schedule: Literal["constant", "cosine"] = "constant"
-    device: str = "cpu"
 
 
 def train_config(train: TrainParams, data: TrainingData) -> TrainConfig:
@@ -209,26 +183,6 @@ def split_episodes(
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
 
 
-def window_index(data: SequenceData, starts: np.ndarray, seq_len: int) -> np.ndarray:
-    """(B, seq_len) step indices of windows beginning at ``starts``; a window running past
-    its episode's end repeats the last step (robomimic's sequence padding)."""
-    ep = np.searchsorted(data.episode_ends, starts, side="right")
-    last = data.episode_ends[ep] - 1
-    return np.minimum(starts[:, None] + np.arange(seq_len), last[:, None])
-
-
-def validation_windows(data: SequenceData, seq_len: int, limit: int = 2000) -> np.ndarray:
-    """Fixed validation windows: every seq_len-th step of every episode (at most ``limit``)."""
-    starts = np.concatenate(
-        [
-            np.arange(s, e, seq_len)
-            for s, e in zip(data.episode_starts, data.episode_ends, strict=False)
-        ]
-    )
-    starts = starts[np.linspace(0, len(starts) - 1, min(limit, len(starts))).astype(int)]
-    return window_index(data, starts, seq_len)
-
-
 # a policy directory: the checkpoints of every training seed (checkpoint_path)
 POLICY_DIR = directory_kind("policy directory", r"seed\d+/epoch\d+\.pt")
 
@@ -344,18 +298,11 @@ def train_policy(
     windows; NaN without validation episodes), seconds."""
     device = torch.device(config.device)
     seq_len = config.policy.seq_len
-    torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
-    model = BCRNN(config.policy)
-    model.set_normalisation(train_data.obs.mean(0), train_data.obs.std(0))
+    model = initial_policy(config.policy, train_data, seed)
+    rng = np.random.default_rng(seed)  # the training windows' starts
     model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
-    total_steps = config.epochs * config.steps_per_epoch
-    schedule = (
-        torch.optim.lr_scheduler.CosineAnnealingLR(opt, total_steps, eta_min=config.lr / 100)
-        if config.lr_schedule == "cosine"
-        else None
-    )
+    schedule = lr_scheduler(opt, config)
     train_obs = torch.from_numpy(train_data.obs).to(device)
     train_actions = torch.from_numpy(train_data.actions).to(device)
     val_idx = validation_windows(val_data, seq_len) if val_data.n_episodes else None
@@ -403,20 +350,6 @@ def train_policy(
         if epoch % config.checkpoint_every == 0 or epoch == config.epochs:
             on_checkpoint(epoch, model)  # save_checkpoint stores CPU tensors
     return history
-
-
-@dataclass(frozen=True)
-class TrainingRun:
-    """One training: ``seed`` on ``train_data``, validated on ``val_data``. ``label`` names it
-    on its progress bar, drawn on terminal line ``position`` (runs side by side each have
-    their own line)."""
-
-    train_data: SequenceData
-    val_data: SequenceData
-    config: TrainConfig
-    seed: int
-    label: str = "train"
-    position: int = 0
 
 
 def run_training(
@@ -487,8 +420,6 @@ def stacked_trainings(
 ) -> Iterator[tuple[list[dict[str, float]], list[tuple[int, BCRNN]]]]:
     """:func:`run_trainings`' results for runs on a GPU, all trained at once as one stacked
     network (mimicgen_pipe.stacked_training), with one progress bar for the stack."""
-    from mimicgen_pipe.stacked_training import train_stacked
-
     states: list[list[tuple[int, dict[str, torch.Tensor]]]] = [[] for _ in runs]
     bar = tqdm(total=runs[0].config.epochs, desc=f"train {len(runs)} stacked", unit="epoch")
 
