@@ -38,6 +38,7 @@ import json
 import os
 import re
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -311,11 +312,41 @@ def video_feature(size: tuple[int, int], fps: int) -> dict[str, Any]:
     }
 
 
-def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
-    from mimicgen_pipe.exporters import episode_images, subtask_labels
+@dataclass(frozen=True)
+class Videos:
+    """What the cameras' videos add to a dataset: meta/episodes' columns (each episode's video
+    file and time span [s], its image stats), stats.json's entries and info.json's features,
+    one per camera, and the videos' size [bytes]."""
 
+    episodes: dict[str, list]
+    stats: dict[str, dict]
+    features: dict[str, dict]
+    size: int
+
+
+def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
+    """``store`` as a LeRobot dataset in the new folder ``path`` (the module's layout), with
+    the export's ``info`` (exporters.ExportInfo); its figures: image_bytes, the videos' size."""
     path = Path(path)
     (path / "meta").mkdir(parents=True)
+    frames, features, labelled = frame_columns(store, info)
+    write_frames(path, frames, features)
+    episodes, stats = episode_columns(store, info, frames)
+    videos = write_videos(path, store, info.fps)
+    episodes |= videos.episodes
+    episodes["meta/episodes/chunk_index"] = [0] * store.n_episodes
+    episodes["meta/episodes/file_index"] = [0] * store.n_episodes
+    write_meta(path, store, info, episodes, stats | videos.stats, labelled)
+    meta = info_json(store, info, features | videos.features)
+    (path / "meta/info.json").write_text(json.dumps(meta, indent=2))
+    return {"image_bytes": videos.size}
+
+
+def frame_columns(store: EpisodeStore, info) -> tuple[dict[str, np.ndarray], dict[str, dict], bool]:
+    """Every frame's columns (the module's list), their info.json features, and whether the
+    frames carry subtask labels (a store with term signals or subtask ends)."""
+    from mimicgen_pipe.exporters import subtask_labels
+
     n_steps = int(store.episode_ends[-1])
     lengths = store.lengths
     episode_index = np.repeat(np.arange(store.n_episodes, dtype=np.int64), lengths)
@@ -348,7 +379,11 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
         for key, rows in labels.items():
             frames[key] = rows
             features[key] = {"dtype": "int64", "shape": [1], "names": None}
-    features |= INDEX_FEATURES
+    return frames, features | INDEX_FEATURES, labelled
+
+
+def write_frames(path: Path, frames: Mapping[str, np.ndarray], features: dict[str, dict]) -> None:
+    """The frames' parquet file, with the Hugging Face feature types of ``features``."""
     table = pa.table({k: _column(v) for k, v in frames.items()})
     data_file = path / DATA_PATH.format(chunk_index=0, file_index=0)
     data_file.parent.mkdir(parents=True)
@@ -356,11 +391,17 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
         table.replace_schema_metadata({"huggingface": _hf_features(features)}), data_file
     )
 
+
+def episode_columns(
+    store: EpisodeStore, info, frames: Mapping[str, np.ndarray]
+) -> tuple[dict[str, list], dict[str, dict]]:
+    """meta/episodes' columns for the frames (each episode's task, length, row range and
+    per-episode stats of every frame column), and the dataset's stats of every frame column."""
     starts, ends = store.episode_starts, store.episode_ends
     episodes: dict[str, list] = {
         "episode_index": list(range(store.n_episodes)),
         "tasks": [[info.task_description]] * store.n_episodes,
-        "length": lengths.tolist(),
+        "length": store.lengths.tolist(),
         "data/chunk_index": [0] * store.n_episodes,
         "data/file_index": [0] * store.n_episodes,
         "dataset_from_index": starts.tolist(),
@@ -371,20 +412,41 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
         per_episode = [_stats(values[s:e]) for s, e in zip(starts, ends, strict=True)]
         for stat in per_episode[0]:
             episodes[f"stats/{key}/{stat}"] = [p[stat] for p in per_episode]
-    image_bytes = 0
-    for camera, size in store_cameras(store.attrs).items():
+    return episodes, stats
+
+
+def write_videos(path: Path, store: EpisodeStore, fps: int) -> Videos:
+    """Each camera's video (write_video), at ``fps`` [Hz], and what it adds to the dataset."""
+    from mimicgen_pipe.exporters import episode_images
+
+    episodes: dict[str, list] = {}
+    stats: dict[str, dict] = {}
+    features: dict[str, dict] = {}
+    size = 0
+    for camera, frame_size in store_cameras(store.attrs).items():
         key = f"observation.images.{camera}"
         columns, per_episode, written = write_video(
-            path, key, episode_images(store, camera), info.fps, size
+            path, key, episode_images(store, camera), fps, frame_size
         )
         episodes |= columns
         for stat in per_episode[0]:
             episodes[f"stats/{key}/{stat}"] = [p[stat].tolist() for p in per_episode]
         stats[key] = aggregate_image_stats(per_episode)
-        features[key] = video_feature(size, info.fps)
-        image_bytes += written
-    episodes["meta/episodes/chunk_index"] = [0] * store.n_episodes
-    episodes["meta/episodes/file_index"] = [0] * store.n_episodes
+        features[key] = video_feature(frame_size, fps)
+        size += written
+    return Videos(episodes, stats, features, size)
+
+
+def write_meta(
+    path: Path,
+    store: EpisodeStore,
+    info,
+    episodes: dict[str, list],
+    stats: dict[str, dict],
+    labelled: bool,
+) -> None:
+    """meta/: the episodes' parquet file, the task and (``labelled``) subtask tables and
+    stats.json."""
     (path / EPISODES_PATH).parent.mkdir(parents=True)
     pq.write_table(pa.table(episodes), path / EPISODES_PATH)
     tasks = _index_table(None, "task_index", [info.task_description])
@@ -395,11 +457,15 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
             _index_table("subtask", "subtask_index", names), path / "meta/subtasks.parquet"
         )
     (path / "meta/stats.json").write_text(json.dumps(stats, indent=2))
-    meta = {
+
+
+def info_json(store: EpisodeStore, info, features: dict[str, dict]) -> dict[str, Any]:
+    """meta/info.json: the dataset's layout, sizes, fps and ``features``."""
+    return {
         "codebase_version": CODEBASE_VERSION,
         "robot_type": info.env_args["env_kwargs"]["robot"],
         "total_episodes": store.n_episodes,
-        "total_frames": n_steps,
+        "total_frames": int(store.episode_ends[-1]),
         "total_tasks": 1,
         "chunks_size": CHUNKS_SIZE,
         "data_files_size_in_mb": 100,
@@ -410,5 +476,3 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
         "video_path": VIDEO_PATH if store_cameras(store.attrs) else None,
         "features": features,
     }
-    (path / "meta/info.json").write_text(json.dumps(meta, indent=2))
-    return {"image_bytes": image_bytes}
