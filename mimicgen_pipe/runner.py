@@ -395,6 +395,16 @@ class GenerationResult:
     metrics: dict
 
 
+@dataclass
+class AttemptTally:
+    """A run's attempts so far, in attempt order: kept (successful) and failed ones, and a
+    row per attempt: success, failed subtask, seconds, IK failure, planner failure."""
+
+    kept: list[Attempt] = dataclasses.field(default_factory=list)
+    failed: list[Attempt] = dataclasses.field(default_factory=list)
+    rows: list[tuple[bool, int, float, bool, bool]] = dataclasses.field(default_factory=list)
+
+
 def generate(
     job: AttemptJob,
     seeds: Sequence[int],
@@ -412,10 +422,7 @@ def generate(
     Raises RuntimeError when the first IK_ABORT_AFTER attempts all failed at IK (the arm
     cannot reach the task) or when the seeds run out before ``num_demos`` successes; an
     Interrupted on the way up says how far the run got."""
-    kept: list[Attempt] = []
-    failed: list[Attempt] = []
-    # success, failed subtask, seconds, IK failure, planner failure
-    rows: list[tuple[bool, int, float, bool, bool]] = []
+    tally = AttemptTally()
     bar = tqdm(
         total=len(seeds) if num_demos is None else num_demos,
         desc=label,
@@ -426,31 +433,12 @@ def generate(
     results = run_attempts(job, seeds, executor, work)
     try:
         if num_demos != 0:
-            for _, attempt, sec in results:
-                rows.append(
-                    (
-                        attempt.success,
-                        attempt.failed_subtask,
-                        sec,
-                        attempt.ik_failed,
-                        attempt.planner_failed,
-                    )
-                )
-                if len(rows) == IK_ABORT_AFTER and all(r[3] for r in rows):
-                    raise InputError(
-                        f"all of the first {IK_ABORT_AFTER} attempts failed at IK "
-                        f"(robot {robot!r} cannot reach the targets); nothing was written"
-                    )
-                (kept if attempt.success else failed).append(attempt)
-                bar.update(1 if (attempt.success or num_demos is None) else 0)
-                bar.set_postfix(attempts=len(rows), dgr=f"{100 * len(kept) / len(rows):.1f}%")
-                if num_demos is not None and len(kept) == num_demos:
-                    break
+            take_attempts(results, tally, bar, num_demos, robot)
     except Interrupted as exc:
         exc.detail = (
-            f"after {len(rows)} of {len(seeds)} attempts"
+            f"after {len(tally.rows)} of {len(seeds)} attempts"
             if num_demos is None
-            else f"after {len(rows)} attempts ({len(kept)} of {num_demos} demos)"
+            else f"after {len(tally.rows)} attempts ({len(tally.kept)} of {num_demos} demos)"
         )
         if work is not None:
             exc.detail += f"; finished blocks kept in {work.path} (the same command resumes)"
@@ -459,24 +447,71 @@ def generate(
         if work is None:
             raise
         raise StageError(
-            f"{exc}; {len(rows)} attempts done, their blocks kept in {work.path}: the same "
-            "command resumes from them"
+            f"{exc}; {len(tally.rows)} attempts done, their blocks kept in {work.path}: the "
+            "same command resumes from them"
         ) from None
     finally:
         results.close()
         bar.close()
     wall = time.perf_counter() - t0
-    n = len(rows)
-    if num_demos is not None and len(kept) < num_demos:
-        # its blocks would only resume this same run to the same cap (max_attempts is part
-        # of the run id): nothing is kept
-        if work is not None:
-            work.remove()
-        raise InputError(
-            f"{len(kept)} of {num_demos} demos after generate.max_attempts={n} "
-            f"attempts (DGR {100 * len(kept) / max(1, n):.1f}%); raise generate.max_attempts "
-            "(--max-attempts) or check the source demos; nothing was written"
+    if num_demos is not None and len(tally.kept) < num_demos:
+        too_few_demos(tally, num_demos, work)
+    return generation_result(job, tally, wall)
+
+
+def take_attempts(
+    results: Iterator[tuple[int, Attempt, float]],
+    tally: AttemptTally,
+    bar: tqdm,
+    num_demos: int | None,
+    robot: str,
+) -> None:
+    """Add the attempts of ``results`` to ``tally`` in order, until they run out or (guarantee
+    mode) ``num_demos`` have succeeded, counting each on the progress ``bar``. Raises
+    InputError when the first IK_ABORT_AFTER all failed at IK (``robot`` cannot reach the
+    targets)."""
+    for _, attempt, sec in results:
+        tally.rows.append(
+            (
+                attempt.success,
+                attempt.failed_subtask,
+                sec,
+                attempt.ik_failed,
+                attempt.planner_failed,
+            )
         )
+        rows = tally.rows
+        if len(rows) == IK_ABORT_AFTER and all(r[3] for r in rows):
+            raise InputError(
+                f"all of the first {IK_ABORT_AFTER} attempts failed at IK "
+                f"(robot {robot!r} cannot reach the targets); nothing was written"
+            )
+        (tally.kept if attempt.success else tally.failed).append(attempt)
+        bar.update(1 if (attempt.success or num_demos is None) else 0)
+        bar.set_postfix(attempts=len(rows), dgr=f"{100 * len(tally.kept) / len(rows):.1f}%")
+        if num_demos is not None and len(tally.kept) == num_demos:
+            break
+
+
+def too_few_demos(tally: AttemptTally, num_demos: int, work: WorkDir | None) -> None:
+    """Raise InputError for a guarantee-mode run whose attempts ran out before ``num_demos``
+    succeeded, removing its ``work`` directory: its blocks would only resume this same run
+    to the same cap (max_attempts is part of the run id), so nothing is kept."""
+    n = len(tally.rows)
+    if work is not None:
+        work.remove()
+    raise InputError(
+        f"{len(tally.kept)} of {num_demos} demos after generate.max_attempts={n} "
+        f"attempts (DGR {100 * len(tally.kept) / max(1, n):.1f}%); raise generate.max_attempts "
+        "(--max-attempts) or check the source demos; nothing was written"
+    )
+
+
+def generation_result(job: AttemptJob, tally: AttemptTally, wall: float) -> GenerationResult:
+    """The run's result from its ``tally`` and wall time [s]: its metrics, and the failed
+    attempts that have steps (one stopped at IK before its first step is counted in the
+    metrics only)."""
+    rows = tally.rows
     metrics = generation_metrics(
         np.array([r[0] for r in rows], bool),
         np.array([r[1] for r in rows]),
@@ -485,9 +520,8 @@ def generate(
         np.array([r[3] for r in rows], bool),
         np.array([r[4] for r in rows], bool) if job.config.transit == "planned" else None,
     )
-    # an attempt stopped at IK before its first step has no steps to keep; it is counted in
-    # the metrics only
-    failed = [a for a in failed if len(a.steps)]
+    failed = [a for a in tally.failed if len(a.steps)]
+    kept = tally.kept
     metrics.update(
         wall_seconds=wall, steps=int(sum(len(a.steps["actions"]) for a in kept + failed))
     )
