@@ -223,13 +223,15 @@ class TransferParams:
 class PlannedTransitParams:
     """The transit pipeline (transit/dvc.yaml): ``attempts`` fixed attempts with linear and
     with planned transit, on the D0 of each task of ``tasks`` and on stack_cube_wall's
-    variant wall; policies on ``policy_demos`` kept demos of each transit on the wall."""
+    variant wall, at action noise ``action_noise``; policies on ``policy_demos`` kept demos
+    of each transit on the wall."""
 
     tasks: list[str] = field(
         default_factory=lambda: ["stack_cube_wall", "pull_cube_tool", "place_sphere"]
     )
     attempts: int = 200
     policy_demos: int = 100
+    action_noise: float = 0.025  # the suite's: the paper's 0.05 in ManiSkill's action units
 
 
 @dataclass(frozen=True)
@@ -347,6 +349,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "planned_transit.attempts": (1, 10_000_000),
     "planned_transit.policy_demos": (1, 10_000_000),
     "suite.action_noise": (0.0, 1.0),
+    "planned_transit.action_noise": (0.0, 1.0),
     "suite.scaling.demos": (1, 10_000_000),
     "suite.scaling.num_demos": (1, 10_000_000),  # each entry
     "suite.scaling.max_attempts": (1, 10_000_000),

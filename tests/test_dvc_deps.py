@@ -99,7 +99,7 @@ def test_a_task_file_is_in_its_own_stages_manifests_only():
             assert len(tasks) == 1, (path, tasks)
     # one task of the suite: its stages (and the dataset-size stages, which run it) only
     edited = rerun_by_edit("envs/maniskill/tasks/peg_insertion.py")
-    scaling = yaml.safe_load((REPO / "params.yaml").read_text())["suite"]["scaling"]["task"]
+    scaling = yaml.safe_load((REPO / "suite/params.yaml").read_text())["suite"]["scaling"]["task"]
     assert scaling == "peg_insertion"
     assert edited and all(
         s.startswith("suite/") and ("/peg_insertion.txt" in s or "_scaling.txt" in s)

@@ -17,7 +17,7 @@ from tests.conftest import REPO, cli, replay_first_episodes
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
-SUITE = yaml.safe_load((REPO / "params.yaml").read_text())["suite"]
+SUITE = yaml.safe_load((REPO / "suite/params.yaml").read_text())["suite"]
 
 
 @pytest.mark.parametrize("task", SUITE["tasks"])
