@@ -13,7 +13,7 @@ import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
-from mimicgen_pipe.observe import (
+from mimicgen_pipe.camera_images import (
     ImageBlockCodec,
     ObserveJob,
     check_input,

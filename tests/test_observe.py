@@ -123,7 +123,7 @@ def test_same_bytes_with_one_and_two_workers(pybullet_store, tmp_path, monkeypat
 
 
 def test_a_resumed_run_gives_the_same_bytes(pybullet_store, tmp_path, monkeypatch, capsys):
-    import mimicgen_pipe.observe as library
+    import mimicgen_pipe.camera_images as library
     import stages.observe
 
     monkeypatch.chdir(tmp_path)
