@@ -7,17 +7,15 @@ and check what is asked of it before any simulator starts.
 
 from __future__ import annotations
 
-import functools
 import types
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 from threadpoolctl import threadpool_limits
 
 from mimicgen_pipe.contracts import Renderer, SourceEpisode
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import Params, check_batch_size
+from mimicgen_pipe.params import check_batch_size
 from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.taskspec import TaskSpec
 
@@ -181,20 +179,6 @@ def make_batch_env(backend: str, task: str, robot: str, num_envs: int, sim_backe
     after :func:`check_batched`; numpy's BLAS on one thread, as :func:`make_env`."""
     threadpool_limits(1, user_api="blas")
     return backend_package(backend).make_batch(task, robot, num_envs, sim_backend)
-
-
-def generation_batches(params: Params) -> Callable[[], Any] | None:
-    """What makes each generate worker's batch of generate.num_envs scenes, checked
-    (:func:`check_batched`) before any work; None to run one attempt at a time (one scene,
-    and no GPU simulation asked for: maniskill.sim_backend physx_cpu)."""
-    g = params.generate
-    sim_backend = params.maniskill.sim_backend if params.backend == "maniskill" else None
-    if g.num_envs == 1 and sim_backend != "physx_cuda":
-        return None
-    check_batched(params.backend, params.task, g.robot, g.num_envs, sim_backend, g.transit)
-    return functools.partial(
-        make_batch_env, params.backend, params.task, g.robot, g.num_envs, sim_backend
-    )
 
 
 def source_episodes(

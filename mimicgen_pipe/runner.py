@@ -1,6 +1,7 @@
-"""Running many generation attempts, on any executor (mimicgen_pipe.executors): the
-generate stage's job from params (``attempt_job``), its loop (``generate``), and what it
-writes (``generated_attrs``, ``write_generated``).
+"""Running many generation attempts, on any executor (mimicgen_pipe.executors): what every
+worker is sent (``AttemptJob``), the loop (``generate``), and what it writes
+(``write_generated``). The generate stage resolves its request into these, checked, once
+(stages/generate_job.py); nothing here reads params or the command line.
 
 Every attempt's seed is derived from (stage seed, variant, attempt index), and results are
 consumed in attempt order. A simulator carries history from one episode to the next (PhysX
@@ -36,11 +37,8 @@ from mimicgen_pipe.generation import (
 )
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.metrics import generation_metrics
-from mimicgen_pipe.outputs import run_id, store_digest
-from mimicgen_pipe.params import Params, data_params, range_error
-from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
-from mimicgen_pipe.store import EpisodeStore, read_store, write_store
+from mimicgen_pipe.store import EpisodeStore, write_store
 from mimicgen_pipe.taskspec import ARM, TaskSpec, arm_key
 
 ATTEMPTS_PER_BLOCK = 16  # rebuilding a ManiSkill scene costs ~0.24 s, ~4% of a block
@@ -100,111 +98,6 @@ class AttemptJob:
     def block_size(self) -> int:
         """Attempts per block: ATTEMPTS_PER_BLOCK for each scene a worker steps."""
         return ATTEMPTS_PER_BLOCK * self.num_envs
-
-
-def with_generate_options(
-    params: Params,
-    attempts: int | None,
-    action_noise: float | None,
-    transit: str | None = None,
-    num_demos: int | None = None,
-    max_attempts: int | None = None,
-) -> Params:
-    """``params`` with the generate stage's options in place of the keys they stand for:
-    ``attempts``, exactly that many attempts (generate.mode fixed_attempts, max_attempts);
-    ``action_noise``, generate.action_noise; ``transit``, generate.transit; ``num_demos``,
-    until that many succeed (generate.mode guarantee, num_demos); ``max_attempts``, the
-    cap of guarantee mode (generate.max_attempts). Each is held to its key's range:
-    InputError naming the option otherwise."""
-    g = params.generate
-    if attempts is not None and num_demos is not None:
-        raise InputError("--attempts and --num-demos: one of them (fixed attempts or demos)")
-    if attempts is not None and max_attempts is not None:
-        raise InputError("--attempts and --max-attempts: one of them (--attempts is the count)")
-    for flag, key, value in (
-        ("--attempts", "generate.max_attempts", attempts),
-        ("--action-noise", "generate.action_noise", action_noise),
-        ("--num-demos", "generate.num_demos", num_demos),
-        ("--max-attempts", "generate.max_attempts", max_attempts),
-    ):
-        why = range_error(key, value) if value is not None else None
-        if why:
-            raise InputError(f"{flag} {value}: {why}")
-    if attempts is not None:
-        g = dataclasses.replace(g, mode="fixed_attempts", max_attempts=attempts)
-    if action_noise is not None:
-        g = dataclasses.replace(g, action_noise=action_noise)
-    if transit is not None:
-        g = dataclasses.replace(g, transit=transit)
-    if num_demos is not None:
-        g = dataclasses.replace(g, mode="guarantee", num_demos=num_demos)
-    if max_attempts is not None:
-        g = dataclasses.replace(g, max_attempts=max_attempts)
-    return dataclasses.replace(params, generate=g)
-
-
-def capped_action_noise(params: Params, spec: TaskSpec) -> tuple[Params, str | None]:
-    """``params`` with generate.action_noise capped at the task's max_action_noise (its task
-    file), and a line saying so (None when the noise is within it)."""
-    g = params.generate
-    sigma = spec.action_noise(g.action_noise)
-    if sigma == g.action_noise:
-        return params, None
-    note = (
-        f"action noise sigma {sigma}, not {g.action_noise}: "
-        f"{params.task}'s max_action_noise (its task file)"
-    )
-    return dataclasses.replace(params, generate=dataclasses.replace(g, action_noise=sigma)), note
-
-
-def attempt_job(
-    params: Params,
-    spec: TaskSpec,
-    variant: str,
-    parsed: Path,
-    make_env: Callable[[], Env],
-    make_batch: Callable[[], BatchEnv] | None = None,
-) -> tuple[AttemptJob, EpisodeStore]:
-    """The job of generating ``variant`` of task ``spec`` as ``params`` say, from the parsed
-    source demos at ``parsed`` (read whole, checked to carry the pose noise params give), on
-    envs from ``make_env`` or batches of generate.num_envs scenes from ``make_batch``; and
-    the parsed store."""
-    store = read_store(
-        parsed,
-        required=[arm_key(k, a) for k in ("target_pose", "gripper") for a in spec.arms]
-        + [f"object_poses/{o}" for o in spec.objects],
-        task=params.task,
-        kind="parsed",
-        required_episodes=["subtask_term_index"],
-    )
-    pose_noise = pose_noise_level(params.pose_noise.level)
-    check_store_noise(store.attrs, pose_noise, params.pose_noise.seed, parsed)
-    g = params.generate
-    config = GenerationConfig(
-        g.action_noise,
-        g.n_interp,
-        g.n_fixed,
-        g.selection,
-        g.nn_k,
-        g.per_subtask,
-        pose_noise,
-        g.transit,
-        g.planner,
-    )
-    sources = source_demos(store, spec.objects, spec.arms)
-    job = AttemptJob(make_env, sources, spec, config, variant, make_batch, g.num_envs)
-    return job, store
-
-
-def generation_run_id(params: Params, variant: str, store: EpisodeStore) -> str:
-    """The id of a generate run: the same for the same data-shaping params and parsed
-    ``store``, whatever the worker count, so that the stores stay byte-identical; readers
-    check that kept, failed and metrics agree."""
-    return run_id(
-        {"task": params.task, "variant": variant, "backend": params.backend}
-        | data_params(params, "generate"),
-        store_digest(store),
-    )
 
 
 def open_work_dir(
@@ -540,46 +433,6 @@ def source_demos(
         episode_ends=store.episode_ends,
         term_index=np.asarray(store.episodes["subtask_term_index"], np.int64),
     )
-
-
-def check_source_attrs(
-    attrs: Mapping[str, Any], path: Path, backend: str, spec: TaskSpec, control: tuple[str, int]
-) -> None:
-    """InputError naming the store and attribute where the parsed store at ``path`` was not
-    recorded on ``backend`` with its ``control`` (mode, rate [Hz]) and ``spec``'s objects:
-    these attributes shape the data, and the generated store records them."""
-    expected = {
-        "backend": backend,
-        "control_mode": control[0],
-        "control_freq": control[1],
-        "objects": list(spec.objects),
-    }
-    for key, want in expected.items():
-        if attrs.get(key) != want:
-            raise InputError(
-                f"{path}: attrs.{key} is {attrs.get(key)!r}, expected {want!r} (its demos were "
-                f"not recorded for {spec.name} on {backend}; re-run the stages that made it)"
-            )
-
-
-def generated_attrs(
-    run: str, params: Params, variant: str, spec: TaskSpec, source_attrs: Mapping[str, Any]
-) -> dict[str, Any]:
-    """The attributes of a generate run's kept and failed stores: run ``run`` of ``variant``
-    as ``params`` say, from source demos whose store has ``source_attrs``."""
-    return {
-        "run_id": run,
-        "task": params.task,
-        "variant": variant,
-        "backend": params.backend,
-        "robot": params.generate.robot,
-        "source_robot": source_attrs.get("robot"),
-        "control_mode": source_attrs.get("control_mode"),
-        "control_freq": source_attrs.get("control_freq"),
-        "objects": list(spec.objects),
-        "subtasks": [s.name for s in spec.subtasks],
-        "params": data_params(params, "generate"),
-    }
 
 
 def write_generated(

@@ -3,30 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import functools
-from pathlib import Path
 
-import envs
-from mimicgen_pipe import layout
-from mimicgen_pipe.executors import stage_executor
-from mimicgen_pipe.metrics import GENERATE_PURPOSE, metrics_identity, write_metrics
+from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import claim, output_set, store_kind
-from mimicgen_pipe.params import Params
-from mimicgen_pipe.runner import (
-    AttemptSeeds,
-    attempt_job,
-    capped_action_noise,
-    check_source_attrs,
-    check_workspace,
-    generate,
-    generated_attrs,
-    generation_run_id,
-    open_work_dir,
-    with_generate_options,
-    write_generated,
-)
+from mimicgen_pipe.runner import generate, open_work_dir, write_generated
 from mimicgen_pipe.transit import TRANSITS
-from stages import add_selection_arguments, stage_params
+from stages import add_selection_arguments
+from stages.generate_job import resolve
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -73,69 +56,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def generate_params(args: argparse.Namespace) -> Params:
-    """params.yaml with the command line's options in place of the keys they stand for, each
-    held to its key's range."""
-    options = (args.attempts, args.action_noise, args.transit, args.num_demos, args.max_attempts)
-    return with_generate_options(stage_params(args), *options)
-
-
 def run(args: argparse.Namespace) -> None:
-    params = generate_params(args)
-    spec = envs.task_spec(params.backend, params.task)
-    envs.check_variant(spec, args.variant)
-    params, note = capped_action_noise(params, spec)
-    if note is not None:
-        print(f"generate: {note}")
-    g = params.generate
-    envs.check_robot(params.backend, g.robot)
-    envs.check_transit(params.backend, g.robot, g.transit, len(spec.arms))
-    make_batch = envs.generation_batches(params)  # refuses a batch it cannot run
-    executor = stage_executor(params, "generate")  # refuses unsafe Ray settings before any work
-    parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
-    out = Path(args.out or layout.generated_store(params.task, args.variant))
-    failed_out = layout.failed_store(out)
-    metrics_path = Path(args.metrics or layout.metrics_file("generate", params.task, args.variant))
+    job = resolve(args)  # every refusal, before any work and before any output is claimed
+    if job.note is not None:
+        print(f"generate: {job.note}")
     # one run per output set (fails at once if taken); never over an input or anything else
     claim(
-        (out, store_kind("generated")),
-        (failed_out, store_kind("failed")),
-        metrics_path,
-        inputs=[parsed_path],
+        (job.out, store_kind("generated")),
+        (job.failed_out, store_kind("failed")),
+        job.metrics_path,
+        inputs=[job.parsed_path],
     )
-    make_env = functools.partial(
-        envs.make_env, params.backend, params.task, g.robot, params.maniskill.lean_step
+    work = open_work_dir(job.out, job.run_id, job.seeds, job.attempts.block_size)
+    result = generate(
+        job.attempts, job.seeds, job.executor, work, job.num_demos, job.robot, job.label
     )
-    job, store = attempt_job(params, spec, args.variant, parsed_path, make_env, make_batch)
-    check_source_attrs(store.attrs, parsed_path, params.backend, spec, envs.control(params.backend))
-    seeds = AttemptSeeds(g.seed, args.variant, g.max_attempts)  # each computed when needed
-    check_workspace(job, seeds, g.robot)
-    run = generation_run_id(params, args.variant, store)
-    work = open_work_dir(out, run, seeds, job.block_size)
-    num_demos = g.num_demos if g.mode == "guarantee" else None
-    label = f"generate {params.task} {args.variant}"
-    result = generate(job, seeds, executor, work, num_demos, g.robot, label)
-    attrs = generated_attrs(run, params, args.variant, spec, store.attrs)
     # written aside, then renamed failed store, metrics, kept store: a reader that finds the
     # new kept store finds the rest of its run beside it
-    with output_set(failed_out, metrics_path, out) as (tmp_failed, tmp_metrics, tmp_out):
-        write_generated(tmp_out, tmp_failed, result, spec, attrs)
-        write_metrics(
-            tmp_metrics,
-            metrics_identity(
-                "generate",
-                params.task,
-                params.backend,
-                g.robot,
-                variant=args.variant,
-                purpose=GENERATE_PURPOSE[g.mode],
-            )
-            | {"run_id": run, **(metrics := result.metrics)},
-        )
+    outs = (job.failed_out, job.metrics_path, job.out)
+    with output_set(*outs) as (tmp_failed, tmp_metrics, tmp_out):
+        write_generated(tmp_out, tmp_failed, result, job.spec, job.attrs)
+        metrics = result.metrics
+        write_metrics(tmp_metrics, job.identity | {"run_id": job.run_id, **metrics})
     work.remove()
     print(
         f"generate: {metrics['successes']}/{metrics['attempts']} attempts succeeded "
         f"(DGR {metrics['dgr']:.1f}%, {metrics['ik_failures']} IK failures, "
         f"median {metrics['seconds_per_attempt_median']:.3f} s/attempt)"
-        f" -> {out}"
+        f" -> {job.out}"
     )

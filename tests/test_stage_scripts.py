@@ -17,7 +17,6 @@ from mimicgen_pipe.cli import STAGES
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.params import Params, TrainParams, TrainProfile
 from mimicgen_pipe.policy import PolicyConfig
-from mimicgen_pipe.runner import capped_action_noise, with_generate_options
 from mimicgen_pipe.training import (
     SequenceData,
     TrainConfig,
@@ -25,6 +24,7 @@ from mimicgen_pipe.training import (
     default_device,
     train_config,
 )
+from stages.generate_job import capped_action_noise, with_generate_options
 
 REPO = Path(__file__).resolve().parents[1]
 MAX_RUN_LINES = 60
