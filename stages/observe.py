@@ -11,8 +11,6 @@ from pathlib import Path
 
 import envs
 from mimicgen_pipe import layout
-from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.camera_images import (
     ImageBlockCodec,
     ObserveJob,
@@ -24,6 +22,8 @@ from mimicgen_pipe.camera_images import (
     render_blocks,
     write_observed,
 )
+from mimicgen_pipe.executors import Executor
+from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set, store_kind
 from mimicgen_pipe.params import data_params
 from mimicgen_pipe.store import open_store, store_writer

@@ -84,8 +84,8 @@ def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
         Text(
             "Each cell generated twice from the same source demos and attempt seeds, "
             f"{params.planned_transit.attempts} fixed attempts at σ "
-            f"{params.planned_transit.action_noise}: with MimicGen's straight interpolation (linear, "
-            "paper M.2) and with a motion planner's collision-free path to each segment's "
+            f"{params.planned_transit.action_noise}: with MimicGen's straight interpolation "
+            "(linear, paper M.2) and with a motion planner's collision-free path to each segment's "
             f"approach (planned: approach within {g.approach_distance} m of the reference "
             f"object, clearance {g.clearance} m, at most {g.max_joint_step} rad per joint "
             "and step). stack_cube_wall's source demos are recorded with its wall out of the "
