@@ -39,7 +39,6 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("mimicgen_pipe", "envs", "stages")
 PIPELINES = ("dvc.yaml", "suite/dvc.yaml", "quickstart/dvc.yaml", "transit/dvc.yaml")
-CODE_DEP = re.compile(r"^(mimicgen_pipe|envs|stages)/[^$]*\.py$")
 # a project .py file, or a task file by template: what a manifest holds
 TASK_OR_CODE = re.compile(
     r"^(\.\./)?((mimicgen_pipe|envs|stages)/[^$]*|envs/[^/]+/tasks/\$\{[\w.]+\})\.py$"
@@ -192,19 +191,6 @@ def read_params(stage: dict) -> list[str]:
     return keys
 
 
-def wanted_deps(pipeline: Path) -> dict[str, list[str]]:
-    """Stage name -> the sorted code deps it should list, paths relative to its wdir."""
-    doc = yaml.safe_load(pipeline.read_text())
-    params = pipeline_params(pipeline)
-    out = {}
-    for name, stage in doc["stages"].items():
-        module, backend, tasks = stage_code(stage, params)
-        wdir = (pipeline.parent / stage.get("wdir", ".")).resolve()
-        files = sorted(closure(module, backend, tasks))
-        out[name] = [Path(os.path.relpath(REPO / f, wdir)).as_posix() for f in files]
-    return out
-
-
 MANIFESTS = "code_deps"  # per pipeline folder: one manifest per stage
 CODE_STAGE = "code_deps"
 
@@ -243,10 +229,9 @@ def manifests(pipeline: Path) -> dict[Path, str]:
     return out
 
 
-def write_manifests(pipeline: Path) -> list[Path]:
-    """Write ``pipeline``'s manifests (only those whose text changed) and delete the folder's
-    other files. Returns the written ones."""
-    wanted = manifests(pipeline)
+def write_manifests(pipeline: Path, wanted: dict[Path, str]) -> list[Path]:
+    """Write ``pipeline``'s manifests ``wanted`` (see manifests; only those whose text
+    changed) and delete the folder's other files. Returns the written ones."""
     folder = pipeline.parent / MANIFESTS
     for old in sorted(folder.rglob("*"), reverse=True) if folder.exists() else []:
         if old.is_file() and old not in wanted:
@@ -322,7 +307,8 @@ def main(argv: list[str] | None = None) -> int:
     mode.add_argument("--write", action="store_true", help="write every pipeline's manifests")
     args = p.parse_args(argv)
     if args.manifests:
-        for path in write_manifests((Path.cwd() / args.manifests).resolve()):
+        pipeline = (Path.cwd() / args.manifests).resolve()
+        for path in write_manifests(pipeline, manifests(pipeline)):
             print(f"{path.relative_to(REPO)}: written")
         return 0
     problems = []
@@ -330,11 +316,12 @@ def main(argv: list[str] | None = None) -> int:
         path = REPO / name
         if not path.exists():
             continue
+        wanted = manifests(path)
         if args.write:
-            for written in write_manifests(path):
+            for written in write_manifests(path, wanted):
                 print(f"{written.relative_to(REPO)}: written")
         problems += stage_problems(path)
-        for manifest_path, text in manifests(path).items():
+        for manifest_path, text in wanted.items():
             if not manifest_path.exists() or manifest_path.read_text() != text:
                 problems.append(f"{manifest_path.relative_to(REPO)}: stale")
     for line in problems:
