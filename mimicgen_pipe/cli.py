@@ -12,6 +12,7 @@ import contextlib
 import importlib
 import signal
 import sys
+from typing import Any
 
 from mimicgen_pipe import arithmetic
 
@@ -74,7 +75,8 @@ def _close_progress_bars() -> None:
             bar.close()
 
 
-def _run_stage(argv: list[str]) -> int:
+def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Any]]:
+    """The command line's parser, and each stage's module (its ``run``)."""
     parser = argparse.ArgumentParser(
         prog="mimicgen-pipe",
         description="MimicGen data generation as DVC stages: `dvc repro` runs the default "
@@ -86,10 +88,22 @@ def _run_stage(argv: list[str]) -> int:
     for name, help_text in STAGES.items():
         module = importlib.import_module(f"stages.{name}")
         modules[name] = module
-        module.add_arguments(sub.add_parser(name, help=help_text, description=module.__doc__))
+        stage_parser = sub.add_parser(name, help=help_text, description=module.__doc__)
+        module.add_arguments(stage_parser)
+        stage_parser.add_argument(
+            "--replace-tracked",
+            action="store_true",
+            help="outside `dvc repro`, write outputs even where a pipeline's dvc.lock tracks "
+            "them (refused by default, so that a run by hand never mixes into its results)",
+        )
+    return parser, modules
+
+
+def _run_stage(argv: list[str]) -> int:
+    parser, modules = build_parser()
     args = parser.parse_args(argv)
     try:
-        with outputs.claims():
+        with outputs.claims(replace_tracked=args.replace_tracked):
             modules[args.stage].run(args)
     except InputError as exc:
         print(one_line(f"mimicgen-pipe {args.stage}: error: {exc}"), file=sys.stderr)

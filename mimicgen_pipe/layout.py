@@ -1,9 +1,12 @@
 """Where each stage's declared outputs live (relative to the repository root); dvc.yaml
-names the same paths."""
+names the same paths. A stage run by hand, outside DVC, writes a default output that a
+pipeline tracks under :data:`SCRATCH` instead (``stages.output_path``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
+
+SCRATCH = Path("scratch")  # ignored by git; the same layout below it
 
 
 def source_store(task: str) -> Path:

@@ -45,12 +45,13 @@ from typing import Any
 
 import numpy as np
 
-from mimicgen_pipe import interrupts
+from mimicgen_pipe import interrupts, pipelines
 from mimicgen_pipe.errors import InputError
 
 _TEMP_KINDS = ("tmp", "old")  # .<name>.tmp-* being written, .<name>.old-* being replaced
 _staging = 0  # >0 while an output set writes its temporaries
 _written = False  # an output of this process has been renamed into place
+_replace_tracked = False  # the entry point's --replace-tracked, for the stage it runs
 # Testing hook: SIGKILL this process before the N-th filesystem operation of a journaled
 # commit (1-based), so that tests can stop a real run between any two of them.
 KILL_AT_ENV = "MIMICGEN_PIPE_KILL_AT_COMMIT_OP"
@@ -203,6 +204,27 @@ def check_outputs(
         why = _why_not_replaceable(p, outputs[p])
         if why:
             raise InputError(f"{p}: {why}; give another output path or move it away")
+
+
+def tracked_allowed() -> bool:
+    """Whether outputs may go where a pipeline tracks them: under DVC (dvc repro, dvc exp
+    run), or when the stage was told to (--replace-tracked)."""
+    return _replace_tracked or pipelines.run_by_dvc()
+
+
+def check_untracked(outputs: Iterable[Path]) -> None:
+    """InputError, before any work, when an output path is (or lies in) a result a pipeline
+    tracks (:mod:`mimicgen_pipe.pipelines`): a stage run by hand would mix its output into
+    the pipeline's committed results."""
+    for p in outputs:
+        o = pipelines.owner(p)
+        if o is not None:
+            raise InputError(
+                f"{p}: tracked by {o.dvc_file} (stage {o.stage}); a run by hand would replace "
+                f"the pipeline's result: remake it with `{o.repro}`, give this stage output "
+                "paths outside the pipeline's (e.g. under scratch/), or add --replace-tracked "
+                "to replace it on purpose"
+            )
 
 
 # --- temporaries, replacing, committing ------------------------------------------------------
@@ -527,6 +549,8 @@ def claim(*outputs: Output, inputs: Iterable[str | os.PathLike] = ()) -> None:
     }
     if len(kinds) < len(outputs):
         raise InputError("the same output path is given twice; give distinct paths")
+    if not tracked_allowed():
+        check_untracked(kinds)
     check_outputs(kinds, inputs)  # before locking, so that a bad path leaves nothing behind
     taken: list[Path] = []
     try:
@@ -575,14 +599,16 @@ atexit.register(release)
 
 
 @contextlib.contextmanager
-def claims() -> Iterator[None]:
+def claims(replace_tracked: bool = False) -> Iterator[None]:
     """Release every claim made within the block when it ends (the entry point wraps each
-    stage in one)."""
-    global _written
-    _written = False
+    stage in one). Outside DVC, outputs a pipeline tracks are refused unless
+    ``replace_tracked`` (:func:`check_untracked`)."""
+    global _written, _replace_tracked
+    _written, _replace_tracked = False, replace_tracked
     try:
         yield
     finally:
+        _replace_tracked = False
         release()
 
 

@@ -30,7 +30,7 @@ from zarr.codecs import BytesCodec, Crc32cCodec, ZstdCodec
 from zarr.codecs.bytes import Endian
 from zarr.storage import LocalStore
 
-from mimicgen_pipe import poses
+from mimicgen_pipe import pipelines, poses
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.outputs import atomic_directory, recover
 
@@ -469,13 +469,32 @@ def _check_finite(
         raise InputError(f"{path}: meta/episodes/{key}: NaN or infinite value at episode {ep}")
 
 
+# the stage that writes each kind of store, for a missing input outside any pipeline
+_WRITTEN_BY = {
+    "source": ("source",),
+    "parsed": ("parse", "pose_noise"),
+    "generated": ("generate",),
+    "failed": ("generate",),
+}
+
+
+def missing_store_hint(path: Path, kind: str | Sequence[str] | None) -> str:
+    """What makes a missing store: the pipeline stage that tracks ``path``
+    (:func:`pipelines.made_by`), else the stages that write a store of ``kind``."""
+    if hint := pipelines.made_by(path):
+        return hint
+    kinds = [kind] if isinstance(kind, str) else list(kind or ())
+    stages = sorted({s for k in kinds for s in _WRITTEN_BY.get(k, ())})
+    return f"; written by {' or '.join(f'`mimicgen-pipe {s}`' for s in stages)}" if stages else ""
+
+
 def _open_root(
     path: Path, task: str | None, kind: str | Sequence[str] | None
 ) -> tuple[tuple[zarr.Group, zarr.Group], dict[str, Any]]:
     """The data and meta groups of the store at ``path`` and its attributes, after checking
     its schema version, its kind (one of ``kind`` unless None) and its task (unless None)."""
     if not path.exists():
-        raise InputError(f"{path}: store not found")
+        raise InputError(f"{path}: store not found{missing_store_hint(path, kind)}")
     try:
         root = zarr.open_group(str(path), mode="r")
         attrs = dict(root.attrs)

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
+from pathlib import Path
 
 import envs
+from mimicgen_pipe import layout, outputs, pipelines
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.params import Params, load_params, with_overrides
 
@@ -86,3 +89,22 @@ def stage_params(args: argparse.Namespace) -> Params:
         return params
     keys = list(spec.default_obs_keys)
     return dataclasses.replace(params, train=dataclasses.replace(params.train, obs_keys=keys))
+
+
+def output_path(given: str | None, default: Path) -> Path:
+    """Where a stage writes one output: the path given on the command line; else its
+    default, except that a stage run by hand (outside DVC, without --replace-tracked) writes a
+    default a pipeline tracks under scratch/ instead, and says so, so that the pipeline's
+    committed results stay its own."""
+    if given is not None:
+        return Path(given)
+    o = None if outputs.tracked_allowed() else pipelines.owner(default)
+    if o is None:
+        return default
+    moved = layout.SCRATCH / default
+    print(
+        f"{default} is {o.dvc_file}'s (stage {o.stage}): a run by hand writes {moved} "
+        f"instead (`{o.repro}` remakes the pipeline's)",
+        file=sys.stderr,
+    )
+    return moved

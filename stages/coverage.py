@@ -21,7 +21,7 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import check_same_run, claim
 from mimicgen_pipe.store import read_store
-from stages import add_generated_arguments, add_selection_arguments, stage_params
+from stages import add_generated_arguments, add_selection_arguments, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -46,9 +46,11 @@ def run(args: argparse.Namespace) -> None:
     bounds = reset_bounds(spec, args.variant)
     kept_path = Path(args.generated or layout.generated_store(params.task, args.variant))
     failed_path = layout.failed_store(kept_path)
-    metrics_path = Path(args.metrics or layout.metrics_file("coverage", params.task, args.variant))
-    table_path = Path(args.table or layout.plot_file("coverage", params.task, args.variant))
-    heatmap_path = Path(args.heatmap or layout.heatmap_file(params.task, args.variant))
+    metrics_path = output_path(
+        args.metrics, layout.metrics_file("coverage", params.task, args.variant)
+    )
+    table_path = output_path(args.table, layout.plot_file("coverage", params.task, args.variant))
+    heatmap_path = output_path(args.heatmap, layout.heatmap_file(params.task, args.variant))
     claim(metrics_path, table_path, heatmap_path, inputs=[kept_path, failed_path])
     n_obj = len(spec.objects)
     initial, run_ids = {}, {}

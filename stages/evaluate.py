@@ -20,7 +20,7 @@ from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.training import load_rollout_policy
-from stages import add_selection_arguments, stage_params
+from stages import add_selection_arguments, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,8 +52,8 @@ def run(args: argparse.Namespace) -> None:
     envs.check_variant(spec, args.variant)
     name = f"{args.data}_on_{args.variant}"
     policies = Path(args.policies or layout.policy_dir(params.task, args.data))
-    metrics_path = Path(args.metrics or layout.metrics_file("evaluate", params.task, name))
-    plot_path = Path(args.plot or layout.plot_file("evaluate", params.task, name))
+    metrics_path = output_path(args.metrics, layout.metrics_file("evaluate", params.task, name))
+    plot_path = output_path(args.plot, layout.plot_file("evaluate", params.task, name))
     claim(metrics_path, plot_path, inputs=[policies])  # fails at once if another run writes them
     executor = stage_executor(params, "evaluate")  # refuses unsafe Ray settings before any work
 

@@ -50,7 +50,7 @@ from mimicgen_pipe.pose_noise import check_store_noise, pose_noise_level
 from mimicgen_pipe.runner import AttemptJob, AttemptSeeds, check_workspace, source_demos
 from mimicgen_pipe.store import EpisodeStore, read_store
 from mimicgen_pipe.taskspec import TaskSpec, arm_key
-from stages import stage_params
+from stages import output_path, stage_params
 
 
 @dataclass(frozen=True)
@@ -130,8 +130,10 @@ def resolve(args: argparse.Namespace) -> GenerateJob:
     make_batch = batch_maker(params)  # refuses a batch it cannot run
     executor = stage_executor(params, "generate")  # refuses unsafe Ray settings
     parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
-    out = Path(args.out or layout.generated_store(params.task, args.variant))
-    metrics_path = Path(args.metrics or layout.metrics_file("generate", params.task, args.variant))
+    out = output_path(args.out, layout.generated_store(params.task, args.variant))
+    metrics_path = output_path(
+        args.metrics, layout.metrics_file("generate", params.task, args.variant)
+    )
     backend = envs.backend_package(params.backend)
     store = parsed_store(params, spec, parsed_path)
     check_source_attrs(store.attrs, parsed_path, params.backend, spec, backend.CONTROL)

@@ -14,7 +14,7 @@ from mimicgen_pipe.outputs import claim, store_kind
 from mimicgen_pipe.segments import check_subtask_ends, read_boundaries, subtask_ends
 from mimicgen_pipe.store import read_store, write_store
 from mimicgen_pipe.taskspec import arm_key
-from stages import add_selection_arguments, stage_params
+from stages import add_selection_arguments, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> None:
         raise InputError(f"--boundaries: a file of one arm's subtask ends; {spec.name} has arms "
                          f"{', '.join(spec.arms)} (each is split by its own signals)")  # fmt: skip
     src_path = Path(args.source or layout.source_store(params.task))
-    out = Path(args.out or layout.parsed_store(params.task))
+    out = output_path(args.out, layout.parsed_store(params.task))
     signals = sorted({s.term_signal for s in spec.subtasks if s.term_signal})
     pose_keys = [arm_key(k, a) for k in ("eef_pose", "target_pose") for a in spec.arms]
     pose_keys += [f"object_poses/{o}" for o in spec.objects]

@@ -13,7 +13,7 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.outputs import claim, store_kind
 from mimicgen_pipe.pose_noise import perturb_pose, pose_noise_level, store_attrs
 from mimicgen_pipe.store import read_store, write_store
-from stages import add_selection_arguments, stage_params
+from stages import add_selection_arguments, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> None:
     noise = pose_noise_level(pn.level)  # validated with the params
     spec = envs.task_spec(params.backend, params.task)
     parsed_path = Path(args.parsed or layout.parsed_store(params.task))
-    out = Path(args.out or layout.pose_noise_store(params.task))
+    out = output_path(args.out, layout.pose_noise_store(params.task))
     keys = [f"object_poses/{o}" for o in spec.objects]
     claim((out, store_kind("parsed")), inputs=[parsed_path])
     store = read_store(

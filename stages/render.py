@@ -14,7 +14,7 @@ from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import check_same_run, claim, directory_kind, output_set
 from mimicgen_pipe.store import read_store
 from mimicgen_pipe.video import episode_frames, write_gif, write_mp4
-from stages import add_generated_arguments, add_selection_arguments, stage_params
+from stages import add_generated_arguments, add_selection_arguments, output_path, stage_params
 
 # what the stage writes in its media directory: videos of kept and failed attempts
 MEDIA_DIR = directory_kind("media directory", r"(kept|failed)_\d+\.(mp4|gif)")
@@ -34,8 +34,10 @@ def run(args: argparse.Namespace) -> None:
     envs.check_variant(spec, args.variant)
     kept_path = Path(args.generated or layout.generated_store(params.task, args.variant))
     failed_path = layout.failed_store(kept_path)
-    out = Path(args.out or layout.media_dir(params.task, args.variant))
-    metrics_path = Path(args.metrics or layout.metrics_file("render", params.task, args.variant))
+    out = output_path(args.out, layout.media_dir(params.task, args.variant))
+    metrics_path = output_path(
+        args.metrics, layout.metrics_file("render", params.task, args.variant)
+    )
     stores = {
         kind: read_store(path, kind=kind, task=params.task)
         for kind, path in (("generated", kept_path), ("failed", failed_path))

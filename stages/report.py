@@ -30,7 +30,7 @@ from mimicgen_pipe.report.paper import load_paper_results
 from mimicgen_pipe.report.profiles import read_profile_runs
 from mimicgen_pipe.report.scaling import DATASET_SIZE, SCALING, draw_dataset_size
 from mimicgen_pipe.report.summary import SUMMARY, headline_numbers
-from stages import add_selection_arguments, stage_params
+from stages import add_selection_arguments, output_path, stage_params
 
 REPORT_FILES = ("report.md", "report.html", SUMMARY, *FIGURES, DATASET_SIZE)
 # what the stage writes; heat-map copies (coverage_*.png) in a report folder are replaced
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> None:
     home = SUITE if suite else TRANSIT if transit else None  # None: the default pipeline's
     metrics_dir = Path(args.metrics or (home / "metrics" if home else "metrics"))
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
-    out = Path(args.out or (home / "report" if home else layout.report_dir()))
+    out = output_path(args.out, home / "report" if home else layout.report_dir())
     # fails at once if another run writes the report, or if out holds anything else
     claim((out, REPORT_DIR), inputs=[metrics_dir, args.plots])
     paper = load_paper_results(args.paper)

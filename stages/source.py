@@ -13,7 +13,7 @@ from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set, store_kind
 from mimicgen_pipe.params import Params, data_params
 from mimicgen_pipe.recording import record_source_demos
-from stages import add_selection_arguments, stage_params
+from stages import add_selection_arguments, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> None:
     envs.check_robot(params.backend, p.robot)
     if p.from_file is not None:  # read and checked whole before the simulator starts
         check_source_file(params, args.params)
-    out = Path(args.out or layout.source_store(params.task))
-    metrics_path = Path(args.metrics or layout.metrics_file("source", params.task))
+    out = output_path(args.out, layout.source_store(params.task))
+    metrics_path = output_path(args.metrics, layout.metrics_file("source", params.task))
     given = [p.from_file, str(Path(p.from_file).with_suffix(".json"))] if p.from_file else []
     # fails at once if another run writes them, or if they would replace anything else
     claim((out, store_kind("source")), metrics_path, inputs=given)

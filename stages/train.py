@@ -19,7 +19,7 @@ from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.params import Params, range_error
 from mimicgen_pipe.training import POLICY_DIR, policy_training, train_policies, training_metrics
-from stages import add_selection_arguments, stage_params
+from stages import add_selection_arguments, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -113,9 +113,11 @@ def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
         PolicyToTrain(
             d,
             Path(args.store[i] if args.store else layout.training_store(t, d)),
-            Path(args.out[i] if args.out else layout.policy_dir(t, d)),
-            Path(args.metrics[i] if args.metrics else layout.metrics_file("train", t, d)),
-            Path(args.plot[i] if args.plot else layout.plot_file("train", t, d)),
+            output_path(args.out[i] if args.out else None, layout.policy_dir(t, d)),
+            output_path(
+                args.metrics[i] if args.metrics else None, layout.metrics_file("train", t, d)
+            ),
+            output_path(args.plot[i] if args.plot else None, layout.plot_file("train", t, d)),
             num_demos[i if len(num_demos) > 1 else 0],
         )
         for i, d in enumerate(data)

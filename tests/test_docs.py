@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import shlex
 import typing
 from pathlib import Path
 
 import pytest
+import yaml
 
 from mimicgen_pipe.params import Params
 
@@ -154,3 +156,97 @@ def test_every_params_key_has_a_row_in_stages_and_params() -> None:
         rows = set(re.findall(r"^\| `([^`]+)` \|", part.group(1), re.M)) if part else set()
         undocumented += [f"{section}: {k}" for k in keys if k not in rows]
     assert undocumented == []
+
+
+def doc_commands(
+    tool: str, pages: list[Path] = PAGES, root: Path = REPO
+) -> list[tuple[str, list[str]]]:
+    """Every ``<tool> <subcommand> ...`` in the fenced code of ``pages``, as (page, argv
+    after the tool's name): continued lines joined, cut at a comment, a pipe or redirection,
+    ``&&`` or ``;``, and error messages quoted in the docs (``tool stage: error: ...``) left
+    out."""
+    found = []
+    for page in pages:
+        for block in FENCE.finditer(page.read_text()):
+            for line in block.group(0).replace("\\\n", " ").splitlines()[1:-1]:
+                for part in re.split(r"&&|;|\|", line):
+                    words = shlex.split(part, comments=True)
+                    if tool not in words:
+                        continue
+                    argv = words[words.index(tool) + 1 :]
+                    argv = argv[: next((i for i, w in enumerate(argv) if w[0] in "<>"), None)]
+                    if argv and not argv[0].endswith(":"):
+                        found.append((str(page.relative_to(root)), argv))
+    return found
+
+
+def test_the_command_finder_reads_code_blocks_as_a_shell_would(tmp_path: Path) -> None:
+    page = tmp_path / "page.md"
+    page.write_text(
+        "`mimicgen-pipe prose --no`\n```bash\n. x && mimicgen-pipe export --variant D1 \\\n"
+        "  --formats robomimic   # a comment\nmimicgen-pipe boundaries > ends.yaml\n"
+        "mimicgen-pipe parse: error: quoted output\n```\n"
+    )
+    page = page.relative_to(tmp_path)
+    found = [argv for _, argv in doc_commands("mimicgen-pipe", [tmp_path / page], tmp_path)]
+    assert found == [["export", "--variant", "D1", "--formats", "robomimic"], ["boundaries"]]
+
+
+def test_every_documented_stage_command_parses_as_written() -> None:
+    """Each `mimicgen-pipe ...` of the docs names a stage and only options it has, with
+    values its parser accepts (the stages' own parser, without running them)."""
+    from mimicgen_pipe.cli import build_parser
+
+    parser, _ = build_parser()
+    commands = doc_commands("mimicgen-pipe")
+    assert len(commands) >= 8
+    for page, argv in commands:
+        try:
+            parser.parse_args(argv)
+        except SystemExit:
+            pytest.fail(f"{page}: mimicgen-pipe {' '.join(argv)}: not accepted")
+
+
+def _params_key(file: Path, key: str) -> bool:
+    node = yaml.safe_load(file.read_text())
+    for part in key.lstrip("+").split("."):
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
+
+
+def test_every_documented_dvc_command_names_real_stages_and_params() -> None:
+    """Each `dvc repro` / `dvc exp run` of the docs names pipelines and stages that exist,
+    and each `-S [file:]key=value` a key of that params file (DVC's default: params.yaml)."""
+    from dvc.repo import Repo
+
+    with Repo(str(REPO)) as repo:
+        stages = {(s.dvcfile.relpath, s.addressing.split(":")[-1]) for s in repo.index.stages}
+    groups = {(f, name.split("@")[0]) for f, name in stages}
+    bad = []
+    for page, argv in doc_commands("dvc"):
+        if argv[:1] != ["repro"] and argv[:2] != ["exp", "run"]:
+            continue
+        args = argv[1 if argv[0] == "repro" else 2 :]
+        i = 0
+        while i < len(args):
+            a = args[i]
+            if a in ("-S", "--set-param"):
+                file, _, key = args[i + 1].split("=")[0].rpartition(":")
+                if not _params_key(REPO / (file or "params.yaml"), key):
+                    bad.append(f"{page}: -S {args[i + 1]}: no such key")
+                i += 2
+                continue
+            if a in ("-n", "--name", "-j"):
+                i += 2
+                continue
+            if not a.startswith("-"):  # a pipeline, a stage of dvc.yaml, or <file>:<stage>
+                file, stage = (a, "") if a.endswith(".yaml") else (a.rpartition(":")[::2])
+                file = file or "dvc.yaml"
+                if stage and (file, stage) not in stages and (file, stage) not in groups:
+                    bad.append(f"{page}: {a}: no such stage")
+                if not (REPO / file).is_file():
+                    bad.append(f"{page}: {a}: no such pipeline")
+            i += 1
+    assert bad == []

@@ -1,0 +1,125 @@
+"""Which pipeline stage owns a path: read from the committed ``dvc.lock`` files, so that a
+stage run by hand never replaces a pipeline's tracked result, and a missing input names the
+stage that makes it.
+
+A path is *tracked* when it is, or lies inside, an output (``outs``, ``metrics``, ``plots``)
+that a lock records for a stage of ``dvc.yaml`` at the repository root or of
+``<folder>/dvc.yaml`` one level below it. Paths in a lock are relative to the stage's working
+directory (``wdir`` in its dvc.yaml, else the dvc.yaml's folder). Nothing here imports DVC:
+the locks are plain YAML."""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+# DVC sets it for every command a stage runs (dvc repro, dvc exp run)
+DVC_STAGE_ENV = "DVC_STAGE"
+
+
+@dataclass(frozen=True)
+class Owner:
+    """The stage of a pipeline that writes a tracked path."""
+
+    dvc_file: str  # the pipeline's dvc.yaml, relative to the repository root
+    stage: str  # its name in the lock, e.g. "export@D0"
+
+    @property
+    def repro(self) -> str:
+        """The command that remakes the path in its pipeline."""
+        target = self.stage if self.dvc_file == "dvc.yaml" else f"{self.dvc_file}:{self.stage}"
+        return f"dvc repro {target}"
+
+
+def repository_root(path: str | os.PathLike) -> Path | None:
+    """The nearest folder at or above ``path`` (made absolute) that holds a ``.dvc``
+    folder: the DVC repository the path belongs to, or None."""
+    p = Path(os.path.abspath(path))
+    for d in (p, *p.parents):
+        if (d / ".dvc").is_dir():
+            return d
+    return None
+
+
+def _stage_dirs(dvc_file: Path) -> dict[str, Path]:
+    """Each stage's working directory (absolute), keyed by its name in dvc.yaml."""
+    try:
+        stages = (yaml.safe_load(dvc_file.read_text(encoding="utf-8")) or {}).get("stages")
+    except (OSError, yaml.YAMLError, AttributeError):
+        return {}
+    if not isinstance(stages, dict):
+        return {}
+    return {
+        name: (dvc_file.parent / str(body.get("wdir", "."))).resolve()
+        for name, body in stages.items()
+        if isinstance(body, dict)
+    }
+
+
+def _lock_outputs(root: Path, dvc_file: Path) -> dict[Path, Owner]:
+    lock = dvc_file.with_name("dvc.lock")
+    try:
+        stages = (yaml.safe_load(lock.read_text(encoding="utf-8")) or {}).get("stages")
+    except (OSError, yaml.YAMLError, AttributeError):
+        return {}
+    if not isinstance(stages, dict):
+        return {}
+    dirs = _stage_dirs(dvc_file)
+    name = dvc_file.relative_to(root).as_posix()
+    found: dict[Path, Owner] = {}
+    for stage, body in stages.items():
+        wdir = dirs.get(str(stage).split("@")[0], dvc_file.parent.resolve())
+        for out in (body or {}).get("outs", ()) if isinstance(body, dict) else ():
+            if isinstance(out, dict) and "path" in out:
+                found[(wdir / str(out["path"])).resolve()] = Owner(name, str(stage))
+    return found
+
+
+@functools.cache
+def _tracked(root: Path, stamp: tuple[float, ...]) -> dict[Path, Owner]:
+    """Every tracked output of the repository at ``root`` (``stamp``: the locks' mtimes, so
+    that an edited lock is read again)."""
+    del stamp
+    found: dict[Path, Owner] = {}
+    for dvc_file in _pipeline_files(root):
+        found |= _lock_outputs(root, dvc_file)
+    return found
+
+
+def _pipeline_files(root: Path) -> list[Path]:
+    return sorted(p for p in (root / "dvc.yaml", *root.glob("*/dvc.yaml")) if p.is_file())
+
+
+def owner(path: str | os.PathLike) -> Owner | None:
+    """The stage whose tracked output ``path`` is, lies inside or holds (a folder that
+    holds tracked files), or None (also outside any DVC repository)."""
+    root = repository_root(path)
+    if root is None:
+        return None
+    locks = [f.with_name("dvc.lock") for f in _pipeline_files(root)]
+    stamp = tuple(f.stat().st_mtime if f.is_file() else 0.0 for f in locks)
+    tracked = _tracked(root, stamp)
+    p = Path(os.path.abspath(path)).resolve()
+    for candidate in (p, *p.parents):
+        if candidate in tracked:
+            return tracked[candidate]
+    if p == root:
+        return None  # the repository itself is no output
+    inside = sorted(t for t in tracked if p in t.parents)
+    return tracked[inside[0]] if inside else None
+
+
+def run_by_dvc() -> bool:
+    """Whether this process runs a stage's command for DVC (dvc repro, dvc exp run)."""
+    return bool(os.environ.get(DVC_STAGE_ENV))
+
+
+def made_by(path: str | os.PathLike) -> str:
+    """``"; made by stage S of P: run `dvc repro ...`"`` for a tracked path, else ``""``:
+    the hint a missing-input error ends with."""
+    o = owner(path)
+    return "" if o is None else f"; made by stage {o.stage} of {o.dvc_file}: run `{o.repro}`"
