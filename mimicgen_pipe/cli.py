@@ -37,6 +37,7 @@ STAGES = {
     "render": "MP4s and GIFs of the first kept and failed generated episodes, captioned",
     "observe": "camera images of a store's episodes, rendered from their stored states",
     "report": "report.md and report.html: our metrics beside the paper's, with ablations",
+    "compare": "a pipeline's runs and experiments side by side: changed params, headline numbers",
 }
 
 

@@ -1,0 +1,166 @@
+"""Runs of one pipeline side by side, from ``dvc exp show --json``: one column per commit or
+experiment, one row per params key that differs between them and per headline number of the
+pipeline (its report's summary.json), with each number's change from the first column. A
+transposed view, so that many numbers and a few runs fit a terminal."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from mimicgen_pipe.errors import InputError
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """Where a pipeline keeps what a comparison reads (paths from the repository root)."""
+
+    params: str
+    summary: str
+
+
+PIPELINES = {
+    "default": Pipeline("params.yaml", "report/summary.json"),
+    "quickstart": Pipeline("quickstart/params.yaml", "quickstart/report/summary.json"),
+    "suite": Pipeline("suite/params.yaml", "suite/report/summary.json"),
+    "transit": Pipeline("transit/params.yaml", "transit/report/summary.json"),
+}
+
+
+@dataclass(frozen=True)
+class Run:
+    """One column: a commit, the workspace or an experiment, with its params (flattened to
+    dotted keys) and headline numbers."""
+
+    name: str
+    params: Mapping[str, Any]
+    numbers: Mapping[str, float]
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` -> ``{"a.b": 1}``; lists stay values."""
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out |= flatten(value, f"{name}.")
+        else:
+            out[name] = value
+    return out
+
+
+def _entries(rows: Any) -> Iterator[dict[str, Any]]:
+    """Every commit, workspace and experiment entry of dvc exp show's JSON, in its order
+    (baselines with their experiments after each)."""
+    for row in rows if isinstance(rows, list) else ():
+        if isinstance(row, dict) and "rev" in row:
+            yield row
+        for exp in (row.get("experiments") or ()) if isinstance(row, dict) else ():
+            yield from _entries(exp.get("revs") if isinstance(exp, dict) else None)
+
+
+def _file_data(data: Mapping[str, Any], kind: str, path: str) -> dict[str, Any]:
+    entry = (data.get(kind) or {}).get(path) or {}
+    return entry.get("data") or {} if isinstance(entry, dict) else {}
+
+
+def runs_of(exp_show: Any, pipeline: Pipeline) -> list[Run]:
+    """The runs of ``dvc exp show --json`` output, as one pipeline sees them: its params file
+    and its summary. Entries DVC could not read (``error``) and those without the pipeline's
+    params are left out; the workspace is named "workspace" and comes last, a commit is
+    named by its name or short rev, an experiment by its name."""
+    if not isinstance(exp_show, list):
+        raise InputError("dvc exp show --json: expected a list of commits")
+    runs = []
+    for e in _entries(exp_show):
+        data = e.get("data") or {}
+        params = flatten(_file_data(data, "params", pipeline.params))
+        if e.get("error") or not params:
+            continue
+        numbers = {
+            k: float(v)
+            for k, v in flatten(_file_data(data, "metrics", pipeline.summary)).items()
+            if isinstance(v, (int, float)) and not isinstance(v, bool)
+        }
+        rev = str(e.get("rev", ""))
+        name = e.get("name") or (rev if rev == "workspace" else rev[:7])
+        runs.append(Run(str(name), params, numbers))
+    # the commits (each followed by its experiments) first, so that changes are from a commit
+    return sorted(runs, key=lambda r: r.name == "workspace")
+
+
+def select(runs: Sequence[Run], names: Sequence[str]) -> list[Run]:
+    """The runs named (in the order given), or all when none are; InputError for a name no
+    run has, listing those there are."""
+    if not names:
+        return list(runs)
+    by_name = {r.name: r for r in runs}
+    unknown = [n for n in names if n not in by_name]
+    if unknown:
+        raise InputError(
+            f"no run named {', '.join(unknown)} in dvc exp show (there are: "
+            f"{', '.join(by_name) or 'none'})"
+        )
+    return [by_name[n] for n in names]
+
+
+_ABSENT = object()  # a key a run's params do not have
+
+
+def _cell(value: Any) -> str:
+    if value is _ABSENT:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:g}"
+    return value if isinstance(value, str) else json.dumps(value)  # true, null, [D0, D1]
+
+
+def _number(value: float | None, first: float | None) -> str:
+    if value is None:
+        return "-"
+    if first is None or value == first:
+        return f"{value:g}"
+    return f"{value:g} ({value - first:+.1f})"
+
+
+def table(runs: Sequence[Run], all_params: bool = False) -> list[list[str]]:
+    """Rows of the comparison, a header first: the params that differ between ``runs`` (or
+    every one, ``all_params``), then every headline number any run has, each run's value
+    followed by its change from the first run's."""
+    header = ["", *(r.name for r in runs)]
+    keys = sorted({k for r in runs for k in r.params})
+    rows = [header]
+    for k in keys:
+        values = [r.params.get(k, _ABSENT) for r in runs]
+        if all_params or any(v != values[0] for v in values):
+            rows.append([k, *(_cell(v) for v in values)])
+    for k in sorted({k for r in runs for k in r.numbers}):
+        first = runs[0].numbers.get(k)
+        rows.append([k, *(_number(r.numbers.get(k), first) for r in runs)])
+    return rows
+
+
+def render(rows: Sequence[Sequence[str]], width: int = 120) -> str:
+    """``rows`` as aligned text no wider than ``width`` where the names allow: the runs'
+    columns are split into blocks, each repeating the first (row name) column."""
+    if not rows:
+        return ""
+    name_w = max(len(r[0]) for r in rows)
+    col_w = [max(len(r[i]) for r in rows) for i in range(1, len(rows[0]))]
+    blocks, current, used = [], [], name_w
+    for i, w in enumerate(col_w):
+        if current and used + 2 + w > width:
+            blocks.append(current)
+            current, used = [], name_w
+        current.append(i + 1)
+        used += 2 + w
+    blocks.append(current)
+    out = []
+    for block in blocks:
+        for r in rows:
+            cells = [r[0].ljust(name_w)] + [r[i].rjust(col_w[i - 1]) for i in block]
+            out.append("  ".join(cells).rstrip())
+        out.append("")
+    return "\n".join(out).rstrip() + "\n"
