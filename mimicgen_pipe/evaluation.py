@@ -5,6 +5,7 @@ number of worker processes."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -12,7 +13,6 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-from tqdm import tqdm
 
 from mimicgen_pipe.contracts import Env
 from mimicgen_pipe.errors import InputError
@@ -21,6 +21,7 @@ from mimicgen_pipe.generation import arm_envs
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.observations import arms_observation_values, low_dim_observation
 from mimicgen_pipe.outputs import check_same_run
+from mimicgen_pipe.rollout_progress import StepCounter, StepProgress
 from mimicgen_pipe.taskspec import ARM
 from mimicgen_pipe.training import check_meta, find_checkpoints, load_checkpoint
 
@@ -73,13 +74,18 @@ def checkpoints_to_evaluate(
     obs_dims: Mapping[str, int],
     obs_keys: Sequence[str],
     every_epochs: int,
+    made_by: str = "",
 ) -> Checkpoints:
     """The checkpoints of policy directory ``directory`` that are rolled out
     (:func:`evaluated_checkpoints`), every checkpoint there loaded and checked first: its
     meta, its task (``task``), its observation layout (widths as the task's ``obs_dims``,
     key -> width; keys ``obs_keys``, params' train.obs_keys) and its training run (one for
-    all). Raises InputError naming the file otherwise."""
-    runs = find_checkpoints(directory)
+    all). Raises InputError naming the file otherwise; for a directory without checkpoints,
+    one that ends with ``made_by`` (what writes them, e.g. "; written by ...")."""
+    try:
+        runs = find_checkpoints(directory)
+    except InputError as exc:
+        raise InputError(f"{exc}{made_by}") from None
     epochs: dict[Path, int] = {}
     data_run_ids: dict[str, object] = {}
     for ckpt in (c for ckpts in runs.values() for c in ckpts):
@@ -206,7 +212,9 @@ def _padded(ends: list[int], term_signals: Sequence[str]) -> tuple[int, ...]:
 class EvalJob:
     """Everything a worker needs: how to make its env and to load a policy by name; for a
     policy that reads images, how to make its cameras' renderer; the term signals whose
-    subtask ends each rollout records and the task's arms (see :func:`rollout`)."""
+    subtask ends each rollout records and the task's arms (see :func:`rollout`);
+    ``progress``: the directory where each worker keeps its step counts
+    (mimicgen_pipe.rollout_progress; :func:`evaluate_policies` sets it)."""
 
     make_env: Callable[[], Env]
     load_policy: Callable[[str], ClosedLoopPolicy]
@@ -216,17 +224,20 @@ class EvalJob:
     make_cameras: Callable[[], Any] | None = None
     term_signals: tuple[str, ...] = ()
     arms: tuple[str, ...] = (ARM,)
+    progress: str | None = None
 
 
 @dataclass
 class _Worker:
-    """A worker's env, and the policy it rolled out last (kept for its next block: an
-    external policy's server starts once per worker, not once per block)."""
+    """A worker's env, the policy it rolled out last (kept for its next block: an
+    external policy's server starts once per worker, not once per block), and its step
+    counter (None: it reports no steps)."""
 
     job: EvalJob
     env: Env
     cameras: Any = None
     policy: tuple[str, ClosedLoopPolicy] | None = None
+    counter: StepCounter | None = None
 
     def load(self, name: str) -> ClosedLoopPolicy:
         if self.policy is None or self.policy[0] != name:
@@ -250,30 +261,27 @@ def _init_worker(job: EvalJob) -> None:
     import torch
 
     torch.set_num_threads(1)  # one process per core; a small LSTM gains nothing from threads
+    # the renderer of the cameras the policy reads (EvalJob.make_cameras), none for others
     cameras = job.make_cameras() if job.make_cameras is not None else None
-    _WORKER = _Worker(job, job.make_env(), cameras)
+    _WORKER = _Worker(job, job.make_env(), cameras, counter=StepCounter.open(job.progress))
 
 
 def _run_block(task: tuple[str, list[int]]) -> tuple[str, list[Rollout]]:
     assert _WORKER is not None
-    job, env, cameras = _WORKER.job, _WORKER.env, _WORKER.cameras
+    job, env, cameras, counter = _WORKER.job, _WORKER.env, _WORKER.cameras, _WORKER.counter
     name, seeds = task
     policy = _WORKER.load(name)
     env.rebuild()
-    return name, [
-        rollout(
-            env,
-            policy,
-            s,
-            job.variant,
-            job.horizon,
-            job.objects,
-            cameras,
-            job.term_signals,
-            job.arms,
-        )
-        for s in seeds
-    ]
+    out = []
+    for s in seeds:
+        t0 = time.perf_counter()
+        on_step = counter.step if counter is not None else None
+        r = rollout(env, policy, s, job.variant, job.horizon, job.objects, cameras,
+                    job.term_signals, job.arms, on_step)  # fmt: skip
+        if counter is not None:
+            counter.episode(r.steps, time.perf_counter() - t0)
+        out.append(r)
+    return name, out
 
 
 def run_evaluation(
@@ -299,24 +307,57 @@ def evaluate_policies(
     job: EvalJob, names: Sequence[str], seeds: Sequence[int], executor: Executor, label: str
 ) -> tuple[dict[str, list[Rollout]], float]:
     """Roll out every policy (by name, loaded by ``job.load_policy``) from every seed
-    (:func:`run_evaluation`) under a progress bar named ``label``. Returns each policy's
-    rollouts in seed order and the wall time [s]; an Interrupted on the way up says how
-    many episodes had run."""
+    (:func:`run_evaluation`) under a progress bar of steps named ``label``, which says an
+    estimate of the total time once an episode has finished
+    (mimicgen_pipe.rollout_progress). Returns each policy's rollouts in seed order and the
+    wall time [s]; an Interrupted on the way up says how many episodes had run."""
     out: dict[str, list[Rollout]] = {n: [] for n in names}
     t0 = time.perf_counter()
-    bar = tqdm(total=len(names) * len(seeds), desc=label, unit="episode")
-    results = run_evaluation(job, names, seeds, executor)
-    try:
-        for name, rollouts in results:
-            out[name] += rollouts
-            bar.update(len(rollouts))
-    except Interrupted as exc:
-        exc.detail = f"after {bar.n} of {bar.total} episodes"
-        raise
-    finally:
-        results.close()
-        bar.close()
+    blocks = len(names) * -(-len(seeds) // EPISODES_PER_BLOCK)
+    episodes = len(names) * len(seeds)
+    parallel = min(executor.workers, blocks)
+    with StepProgress(label, episodes, job.horizon, parallel) as progress:
+        job = dataclasses.replace(job, progress=progress.directory)
+        results = run_evaluation(job, names, seeds, executor)
+        try:
+            for name, rollouts in results:
+                out[name] += rollouts
+                progress.returned(len(rollouts))
+        except Interrupted as exc:
+            exc.detail = f"after {progress.episodes_returned} of {episodes} episodes"
+            raise
+        finally:
+            results.close()
     return out, time.perf_counter() - t0
+
+
+def rollout_plan(
+    label: str,
+    inputs: Mapping[str, tuple[Sequence[int], str]],
+    cameras: Sequence[str],
+    size: tuple[int, int] | None,
+    policies: int,
+    episodes: int,
+    horizon: int,
+    workers: int,
+    noun: str = "policy",
+) -> list[str]:
+    """The lines an evaluation prints before its rollouts: what the policy reads
+    (``inputs``, key -> (shape, dtype)), the ``cameras`` rendered for it at ``size``
+    (height, width) [px], and the work: ``policies`` (of ``noun``, e.g. checkpoint) x
+    ``episodes`` x ``horizon`` steps on ``workers`` workers."""
+    reads = ", ".join(f"{k} {tuple(shape)} {dtype}" for k, (shape, dtype) in inputs.items())
+    if cameras and size is not None:
+        seen = f"cameras {', '.join(cameras)}, rendered at {size[0]}x{size[1]} (HxW) every step"
+    else:
+        seen = "no cameras (low-dim observations only)"
+    kind = noun if policies == 1 else ("policies" if noun == "policy" else f"{noun}s")
+    return [
+        f"{label}: the policy reads {reads}",
+        f"{label}: {seen}",
+        f"{label}: {policies} {kind} x {episodes} episodes x {horizon} steps at most = "
+        f"{policies * episodes * horizon} steps, on {workers} worker{'s' if workers > 1 else ''}",
+    ]
 
 
 def evaluate_checkpoints(

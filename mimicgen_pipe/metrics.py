@@ -163,11 +163,15 @@ def generation_metrics(
     return out
 
 
-def evaluation_metrics(per_run: Mapping[int, list[tuple[int, float]]]) -> dict[str, Any]:
+def evaluation_metrics(
+    per_run: Mapping[int, list[tuple[int | None, float]]],
+) -> dict[str, Any]:
     """Success rates [%] of the paper's protocol and the honest one, from
     training seed -> [(epoch, success rate of that checkpoint)] in epoch order:
     success_rate_max (max over a run's checkpoints) and success_rate_last (its last
-    checkpoint), each as mean and std (population) over training seeds, plus per seed."""
+    checkpoint), each as mean and std (population) over training seeds, plus per seed, with
+    the epoch of each run's best checkpoint (the first of equals): the checkpoint's own
+    epoch, as its training counted it; null where that is unknown."""
     best = np.array([max(rate for _, rate in rows) for rows in per_run.values()])
     last = np.array([rows[-1][1] for rows in per_run.values()])
     out: dict[str, Any] = {
@@ -181,5 +185,6 @@ def evaluation_metrics(per_run: Mapping[int, list[tuple[int, float]]]) -> dict[s
     for (seed, rows), b, la in zip(per_run.items(), best, last, strict=True):
         out[f"seed{seed}_success_rate_max"] = float(b)
         out[f"seed{seed}_success_rate_last"] = float(la)
-        out[f"seed{seed}_best_epoch"] = int(max(rows, key=lambda r: r[1])[0])
+        epoch = max(rows, key=lambda r: r[1])[0]
+        out[f"seed{seed}_best_epoch"] = None if epoch is None else int(epoch)
     return out

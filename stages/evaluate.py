@@ -9,12 +9,13 @@ import functools
 from pathlib import Path
 
 import envs
-from mimicgen_pipe import layout
+from mimicgen_pipe import layout, pipelines
 from mimicgen_pipe.evaluation import (
     EvalJob,
     checkpoints_to_evaluate,
     evaluate_checkpoints,
     evaluation_seed,
+    rollout_plan,
 )
 from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
@@ -46,6 +47,17 @@ def write_success_rates(path: Path, per_run: dict[int, list[tuple[int, float]]])
         writer.writerows((s, ep, rate) for s, rows in per_run.items() for ep, rate in rows)
 
 
+def checkpoints_made_by(data: str, policies: Path, default: bool) -> str:
+    """What writes the checkpoints of ``policies`` (the policy directory of training data
+    ``data``; ``default``: the default one), for the error when there are none: the
+    pipeline stage that tracks it (a train run by hand writes elsewhere), else the train
+    command."""
+    if tracked := pipelines.made_by(policies):
+        return tracked
+    command = f"mimicgen-pipe train --data {data}" + ("" if default else f" --out {policies}")
+    return f"; the train stage writes them: run `{command}` first"
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
@@ -62,9 +74,16 @@ def run(args: argparse.Namespace) -> None:
     envs.check_robot(params.backend, robot)
     e = params.evaluate
     checkpoints = checkpoints_to_evaluate(
-        policies, params.task, spec.observation_dims, params.train.obs_keys, e.every_epochs
-    )
+        policies, params.task, spec.observation_dims, params.train.obs_keys, e.every_epochs,
+        checkpoints_made_by(args.data, policies, args.policies is None),
+    )  # fmt: skip
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
+    # every checkpoint was checked to read these keys, of the task's widths
+    inputs = {k: ((spec.observation_dims[k],), "float32") for k in params.train.obs_keys}
+    n = len(checkpoints.paths)
+    for line in rollout_plan(f"evaluate {name}", inputs, (), None, n, e.episodes, spec.horizon,
+                             e.workers, "checkpoint"):  # fmt: skip
+        print(line)
     job = EvalJob(
         make_env=functools.partial(
             envs.make_env, params.backend, params.task, robot, params.maniskill.lean_step

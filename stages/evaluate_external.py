@@ -19,6 +19,7 @@ from mimicgen_pipe.evaluation import (
     Rollout,
     evaluate_policies,
     evaluation_seed,
+    rollout_plan,
     success_rate,
 )
 from mimicgen_pipe.executors import stage_executor
@@ -26,7 +27,9 @@ from mimicgen_pipe.exporters import task_description
 from mimicgen_pipe.external import (
     DEFAULT_PYTHON,
     PolicySpec,
+    Probed,
     check_python,
+    format_module,
     load_external_policy,
     parse_policy,
     policy_digest,
@@ -97,6 +100,26 @@ def camera_renderer(
     )
 
 
+def checkpoint_epoch(fmt: str, path: Path, label: str) -> tuple[int | None, str]:
+    """How far the policy's training had got when it was saved, and in what unit (robomimic:
+    the epoch of model_epoch_<N>.pth; LeRobot: the step of checkpoints/<step>/), as the
+    metrics' seed0_best_epoch and epoch_unit; says so where the path does not tell."""
+    module = format_module(fmt)
+    epoch = module.checkpoint_epoch(path)
+    if epoch is None:
+        print(f"{label}: {path} does not say its training {module.EPOCH_UNIT} (not named as "
+              f"{fmt} names its checkpoints): seed0_best_epoch is null")  # fmt: skip
+    return epoch, module.EPOCH_UNIT
+
+
+def print_plan(label: str, probed: Probed, episodes: int, horizon: int, workers: int) -> None:
+    """What the policy reads, the cameras rendered for it, and the work, before any rollout."""
+    inputs = {k: (v["shape"], v["dtype"]) for k, v in probed.observations.items()}
+    for line in rollout_plan(label, inputs, probed.cameras, probed.size, 1, episodes, horizon,
+                             workers):  # fmt: skip
+        print(line)
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
@@ -119,7 +142,7 @@ def run(args: argparse.Namespace) -> None:
     )
     known = envs.backend_package(params.backend).cameras(robot)
     env_kwargs = {"backend": params.backend, "task": params.task, "robot": robot}
-    cameras, size = probe(policy, spec.observation_dims, env_kwargs, known, spec.action_dim)
+    probed = probe(policy, spec.observation_dims, env_kwargs, known, spec.action_dim)
     job = EvalJob(
         make_env=functools.partial(
             envs.make_env, params.backend, params.task, robot, params.maniskill.lean_step
@@ -129,21 +152,25 @@ def run(args: argparse.Namespace) -> None:
         horizon=spec.horizon,
         objects=spec.objects,
         arms=spec.arms,
-        make_cameras=camera_renderer(params, robot, cameras, size),
+        make_cameras=camera_renderer(params, robot, probed.cameras, probed.size),
     )
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(episodes)]
-    results, wall = evaluate_policies(job, [policy.name], seeds, executor, f"evaluate {name}")
+    label = f"evaluate {name}"
+    epoch, unit = checkpoint_epoch(fmt, path, label)
+    print_plan(label, probed, episodes, spec.horizon, e.workers)
+    results, wall = evaluate_policies(job, [policy.name], seeds, executor, label)
     rollouts = results[policy.name]
-    # in the terms of our own evaluation: one training run, one checkpoint
-    metrics = evaluation_metrics({0: [(0, success_rate(rollouts))]})
+    # in the terms of our own evaluation: one training run, one checkpoint, of its epoch
+    metrics = evaluation_metrics({0: [(epoch, success_rate(rollouts))]})
     metrics.update(
+        epoch_unit=unit,
         policy_format=fmt,
         policy=str(path),
         policy_sha256=policy_digest(path),
         data_run_id=None,
         episodes=episodes,
         horizon=spec.horizon,
-        cameras=",".join(cameras),
+        cameras=",".join(probed.cameras),
         wall_seconds=wall,
         seconds_per_episode=wall / episodes,
         workers=e.workers,

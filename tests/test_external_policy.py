@@ -423,6 +423,7 @@ def test_robomimic_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_
     assert (m["policy_format"], m["policy"]) == ("robomimic", str(checkpoint))
     assert m["policy_sha256"] == external.policy_digest(checkpoint)
     assert (m["episodes"], m["seeds"], m["checkpoints"], m["horizon"]) == (2, 1, 1, 200)
+    assert (m["seed0_best_epoch"], m["epoch_unit"]) == (1, "epoch")  # model_epoch_1.pth
     assert m["success_rate_max"] == m["success_rate_last"] in (0.0, 50.0, 100.0)
     rows = list(csv.DictReader((tmp_path / "episodes.csv").open()))
     assert [int(r["seed"]) for r in rows] == [evaluation_seed(0, "D1", i) for i in range(2)]
@@ -477,6 +478,7 @@ def test_lerobot_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_pa
     assert (m["stage"], m["variant"], m["data"], m["robot"]) == ("evaluate", "D1", "D1", "panda")
     assert (m["policy_format"], m["policy_sha256"]) == ("lerobot", external.policy_digest(model))
     assert (m["episodes"], m["seeds"], m["checkpoints"], m["horizon"]) == (2, 1, 1, 200)
+    assert (m["seed0_best_epoch"], m["epoch_unit"]) == (4, "step")  # checkpoints/last: step 4
     rows = list(csv.DictReader((tmp_path / "episodes.csv").open()))
     assert [int(r["seed"]) for r in rows] == [evaluation_seed(0, "D1", i) for i in range(2)]
     assert all(r["steps"] == "200" or (r["success"] == "1" and int(r["steps"]) < 200)

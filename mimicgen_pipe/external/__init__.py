@@ -23,7 +23,10 @@ nothing of mimicgen_pipe at its top; it defines
 - ``load(path, task)`` (server side, importing numpy, torch and the framework alone): the
   policy, with ``observations`` ({key: {"shape", "dtype"}}, as ``observation`` names them),
   ``action_dim``, ``meta`` (what the checkpoint says of its data: ``env_kwargs`` where it
-  has them), ``reset(seed)`` and ``act(arrays) -> (action_dim,) array``.
+  has them), ``reset(seed)`` and ``act(arrays) -> (action_dim,) array``;
+- ``EPOCH_UNIT`` (``epoch`` or ``step``) and ``checkpoint_epoch(path) -> int | None``: how far
+  its training had got when it saved the policy at ``path``, in that unit, read from the
+  path as the framework names its checkpoints, None where the path does not say.
 """
 
 from __future__ import annotations
@@ -357,23 +360,33 @@ def check_hello(
         )
 
 
+@dataclass(frozen=True)
+class Probed:
+    """What a policy reads, as its server said: ``observations`` ({key: {"shape",
+    "dtype"}}), and of them the ``cameras`` whose images it reads, at ``size`` (height,
+    width) [px], None for none."""
+
+    observations: Mapping[str, Mapping[str, Any]]
+    cameras: tuple[str, ...]
+    size: tuple[int, int] | None
+
+
 def probe(
     spec: PolicySpec,
     obs_dims: Mapping[str, int],
     env_kwargs: Mapping[str, str],
     known: Sequence[str],
     action_dim: int = ARM_ACTION_DIM,
-) -> tuple[tuple[str, ...], tuple[int, int] | None]:
+) -> Probed:
     """Start the policy's server and check, before any rollout, that our env gives it every
     input (:func:`check_hello`; ``obs_dims``: the task's observation widths, ``known``: the
-    arm's cameras) and takes its actions (``action_dim`` wide). Returns the cameras whose
-    images it reads and their (height, width)."""
+    arm's cameras) and takes its actions (``action_dim`` wide). Returns what it reads."""
     with start_policy(spec) as policy:
         hello = policy.hello
     cameras, size = policy_cameras(spec, hello, known)
     provided = provided_inputs(spec.format, obs_dims, spec.obs_keys, cameras, size)
     check_hello(spec, hello, provided, env_kwargs, known, action_dim)
-    return cameras, size
+    return Probed(hello["observations"], cameras, size)
 
 
 def start_policy(spec: PolicySpec, **timeouts: float) -> ExternalPolicy:

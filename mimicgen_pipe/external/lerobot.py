@@ -133,3 +133,21 @@ class LeRobotPolicy:
 
 def load(path: str, task: str) -> LeRobotPolicy:
     return LeRobotPolicy(path, task)
+
+
+EPOCH_UNIT = "step"  # lerobot-train counts its training in steps, and saves by step
+
+
+def checkpoint_epoch(path: Path) -> int | None:
+    """The training step of a ``pretrained_model`` directory as lerobot-train saves it in
+    ``checkpoints/<step>/``: the step of ``training_state/training_step.json`` beside it,
+    else its folder's name (``last`` followed to the step it links to); None for a
+    directory elsewhere."""
+    folder = path.resolve().parent
+    try:
+        step = json.loads((folder / "training_state" / "training_step.json").read_text())["step"]
+    except (OSError, ValueError, KeyError, TypeError):
+        step = None
+    if type(step) is int and step >= 0:
+        return step
+    return int(folder.name) if folder.name.isdigit() and path.name == "pretrained_model" else None

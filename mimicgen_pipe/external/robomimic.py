@@ -123,3 +123,17 @@ class RobomimicPolicy:
 
 def load(path: str, task: str) -> RobomimicPolicy:
     return RobomimicPolicy(path)
+
+
+EPOCH_UNIT = "epoch"
+
+
+def checkpoint_epoch(path: Path) -> int | None:
+    """The epoch robomimic's train.py names a checkpoint by: ``model_epoch_<N>.pth`` (also
+    ``model_epoch_<N>_best_validation_<loss>.pth`` and ``..._<env>_success_<rate>.pth``);
+    None for a file named otherwise (a checkpoint holds no epoch of its own)."""
+    stem = path.name.removesuffix(".pth")
+    if stem == path.name or not stem.startswith("model_epoch_"):
+        return None
+    digits = stem.removeprefix("model_epoch_").split("_")[0]
+    return int(digits) if digits.isdigit() else None
