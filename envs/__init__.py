@@ -119,6 +119,15 @@ def check_cameras(backend: str, robot: str, cameras, where: str) -> None:
         )
 
 
+def camera_calibration(cameras: Sequence[str], height: int, width: int) -> dict[str, dict]:
+    """Camera -> its calibration for images ``height`` x ``width`` [px] (envs/_cameras.py's
+    ``calibration``: K [px], its pose in the world or on the hand link [m]), the same on
+    every back end: each renders the cameras where envs/_cameras.py places them."""
+    from envs._cameras import calibration
+
+    return {c: calibration(c, height, width) for c in cameras}
+
+
 def make_env(backend: str, task: str, robot: str = "panda", lean_step: bool = True):
     """A fresh env of ``task`` on ``backend`` that implements the env protocol. lean_step
     (maniskill): the lean control step, the same simulation without ManiSkill's per-step

@@ -32,6 +32,57 @@ WRIST_POS = np.array([0.0465, -0.02, 0.036])
 WRIST_FORWARD = np.array([0.0, 0.0, 1.0])
 WRIST_UP = np.array([1.0, 0.0, 0.0])
 WRIST_FOV = np.pi / 2
+WRIST_LINK = "panda_hand"  # the link the wrist camera is mounted on, on every arm
+
+
+def _opencv_rotation(forward: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """The rotation whose columns are a camera's OpenCV axes (x right, y down, z forward),
+    for a camera looking along ``forward`` with ``up`` up in its image."""
+    z = np.asarray(forward, np.float64) / np.linalg.norm(forward)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def intrinsics(fov_y: float, height: int, width: int) -> np.ndarray:
+    """The 3x3 pinhole matrix K [px] of a camera of vertical field of view ``fov_y`` [rad]
+    and square pixels, images ``height`` x ``width`` [px], its principal point at the image
+    centre (pixel (u, v) covers [u, u + 1) x [v, v + 1); u right, v down)."""
+    f = height / 2 / np.tan(fov_y / 2)
+    return np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
+
+
+def camera_pose(camera: str) -> tuple[str, np.ndarray]:
+    """(frame, 4x4 pose [m]) of ``camera`` of CAMERAS, its axes OpenCV's: ``agentview`` in
+    the world frame (looking from AGENTVIEW_EYE at AGENTVIEW_TARGET, world z up in its
+    image), ``eye_in_hand`` in the frame of WRIST_LINK (it moves with the hand)."""
+    pose = np.eye(4)
+    if camera == "agentview":
+        eye, target = np.array(AGENTVIEW_EYE), np.array(AGENTVIEW_TARGET)
+        pose[:3, :3] = _opencv_rotation(target - eye, np.array([0.0, 0.0, 1.0]))
+        pose[:3, 3] = eye
+        return "world", pose
+    if camera == "eye_in_hand":
+        pose[:3, :3] = _opencv_rotation(WRIST_FORWARD, WRIST_UP)
+        pose[:3, 3] = WRIST_POS
+        return WRIST_LINK, pose
+    raise ValueError(f"camera {camera!r}: expected one of {CAMERAS}")
+
+
+def calibration(camera: str, height: int, width: int) -> dict[str, object]:
+    """``camera``'s calibration for images ``height`` x ``width`` [px], as plain lists
+    (JSON): ``intrinsics`` (3x3 K [px]), ``fov_y`` [rad], ``frame`` (``world``, or the link
+    it is mounted on), ``pose`` (4x4: the camera in ``frame`` [m], p_frame = pose @ p_camera)
+    and ``axes`` (the camera frame's: OpenCV's)."""
+    fov = AGENTVIEW_FOV if camera == "agentview" else WRIST_FOV
+    frame, pose = camera_pose(camera)
+    return {
+        "intrinsics": intrinsics(fov, height, width).tolist(),
+        "fov_y": float(fov),
+        "frame": frame,
+        "pose": pose.tolist(),
+        "axes": "opencv: x right, y down, z forward",
+    }
 
 
 class CameraRenderer:

@@ -161,6 +161,9 @@ class Backend(Protocol):
     - a batched form (:class:`BatchEnv`, generate.num_envs): ``check_batched(task, robot,
       num_envs, sim_backend)``, InputError for a batch it cannot run, and
       ``make_batch(task, robot, num_envs, sim_backend)``;
+    - ``RESTORES_CHEAPLY = True``: its envs restore a stored state (``set_state``) and tell
+      its success (``is_success``) in about a millisecond, so the export stage evaluates the
+      task's success after every stored step (the rewards and dones of the exports);
     - ``source_file_episodes(path, task)``: the number of episodes of a source file in a
       format of its own (source.from_file), read and checked whole before any simulator
       starts (robomimic files are read on every back end: mimicgen_pipe/robomimic_source.py).

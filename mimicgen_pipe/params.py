@@ -151,10 +151,14 @@ class EvaluateParams:
 class ExportParams:
     """formats: what the export stage writes for each generated store, exporters of
     mimicgen_pipe.exporters (robomimic HDF5, LeRobot dataset, ManiSkill trajectory files).
-    workers: simulator processes replaying episodes for the ManiSkill format."""
+    workers: simulator processes replaying episodes for the ManiSkill format. step_success:
+    evaluate the task's success after every step on the back end, for the rewards and dones
+    (on a back end that restores states cheaply, contracts.Backend; false, or elsewhere: only
+    each episode's last step is known)."""
 
     formats: list[str] = field(default_factory=lambda: ["robomimic", "lerobot", "maniskill"])
     workers: int = 2
+    step_success: bool = True
 
 
 @dataclass(frozen=True)

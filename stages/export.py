@@ -7,6 +7,7 @@ import argparse
 import time
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 import envs
@@ -46,6 +47,7 @@ def run(args: argparse.Namespace) -> None:
     )
     for fmt in formats:  # every format's check before anything is written
         exporters.check(store, fmt, info)
+    step_success = _step_success(store) if params.export.step_success else None
     claim((out, exporters.export_dir_kind()), metrics_path, inputs=[store_path])
     # HDF5 cannot be stopped cleanly on a full disk (it may crash the process): make sure
     # beforehand that every format's arrays fit uncompressed
@@ -63,7 +65,7 @@ def run(args: argparse.Namespace) -> None:
             extra = (
                 _maniskill_replays(store, params.export.workers, params.maniskill.lean_step)
                 if fmt == "maniskill"
-                else {}
+                else {"step_success": step_success}
             )
             if fmt == "maniskill":
                 ok = sum(bool(r.success[-1]) for r in extra["replays"])
@@ -78,6 +80,36 @@ def run(args: argparse.Namespace) -> None:
         )
         write_metrics(tmp_metrics, identity | metrics)
     print(f"export: {store.n_episodes} episodes of {store_path} -> {out}")
+
+
+def _step_success(store) -> np.ndarray | None:
+    """(N_steps,) bool: the task's success after every step, on a back end that restores
+    states cheaply (contracts.Backend's RESTORES_CHEAPLY): each stored state but an episode's
+    first set in an env and checked, the last step's the episode's ``success``; None on
+    another back end. InputError for states of another width than the env's."""
+    a = store.attrs
+    if not getattr(envs.backend_package(a["backend"]), "RESTORES_CHEAPLY", False):
+        return None
+    env = envs.make_env(a["backend"], a["task"], a["robot"])
+    states = store.data["env_state"]
+    width = int(np.size(env.get_state()))
+    if states.shape[1:] != (width,):
+        env.close()
+        raise InputError(
+            f"{store.path}: data/env_state has {states.shape[1:]} values a step, expected "
+            f"({width},) (the {a['backend']} {a['task']} env's state); export.step_success: "
+            "false exports it without the success of every step"
+        )
+    success = np.zeros(len(states), bool)
+    ends = store.episode_ends
+    episode_success = store.episodes.get("success", np.ones(store.n_episodes, bool))
+    for i in tqdm(range(store.n_episodes), desc="export: success of every step", unit="episode"):
+        for row in range(int(store.episode_starts[i]) + 1, int(ends[i])):
+            env.set_state(states[row])
+            success[row - 1] = env.is_success()
+        success[ends[i] - 1] = episode_success[i]
+    env.close()
+    return success
 
 
 def _maniskill_replays(store, workers: int, lean_step: bool) -> dict:

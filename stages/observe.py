@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import envs
+from mimicgen_pipe import camera_calibration as calibration
 from mimicgen_pipe import layout
 from mimicgen_pipe.camera_images import (
     ImageBlockCodec,
@@ -72,6 +73,8 @@ def run(args: argparse.Namespace) -> None:
     work = open_work_dir(out, run_id, ImageBlockCodec(blocks, view.lengths, job))
     attrs = dict(a) | {
         "cameras": {c: {"height": o.height, "width": o.width} for c in o.cameras},
+        # each camera's K and pose (mimicgen_pipe/camera_calibration.py), from the back end
+        calibration.ATTR: envs.camera_calibration(o.cameras, o.height, o.width),
         "observe": data_params(params, "observe")["observe"],
     }
     t0 = time.perf_counter()

@@ -43,8 +43,12 @@ def _images(n: int, h: int, w: int, seed: int) -> np.ndarray:
     return out
 
 
-# the export stage's params for the synthetic stores (which record these observations only)
-PARAMS = f"task: stack_cube\nexport: {{workers: 1}}\ntrain: {{obs_keys: [{', '.join(OBS)}]}}\n"
+# the export stage's params for the synthetic stores (which record these observations only,
+# and random states no simulator can restore: no success evaluated per step)
+PARAMS = (
+    "task: stack_cube\nexport: {workers: 1, step_success: false}\n"
+    f"train: {{obs_keys: [{', '.join(OBS)}]}}\n"
+)
 
 
 def _pose_rows(rng, n: int) -> np.ndarray:
@@ -89,7 +93,10 @@ def synthetic_store(
     attrs = {"task": task, "variant": "D1", "backend": backend, "robot": "panda",
              "control_mode": "pd_ee_delta_pose", "control_freq": 20}  # fmt: skip
     if cameras:
+        from envs._cameras import calibration
+
         attrs["cameras"] = {c: {"height": h, "width": w} for c, (h, w) in cameras.items()}
+        attrs["camera_calibration"] = {c: calibration(c, h, w) for c, (h, w) in cameras.items()}
     write_store(path, "generated", steps, episodes, attrs)
     return exporters.read(path, task)
 
@@ -101,29 +108,46 @@ def export_info(store):
     return exporters.export_info(store.attrs, spec, list(OBS), 0.34)
 
 
+# MimicGen's (robosuite's) names of the synthetic store's observations in the robomimic export
+MIMICGEN_OBS = {"robot0_eef_pos": "eef_pos", "cubeA_pos": "cubeA_pos",
+                "robot0_gripper_qpos": "gripper_qpos", "object": "cubeA_pos"}  # fmt: skip
+MIMICGEN_CAMERAS = {"agentview_image": "agentview", "robot0_eye_in_hand_image": "eye_in_hand"}
+# the task's success after each step: episode 0 from 3 steps before its end, episode 1 at its
+# end only, episode 2 once on the way (step 2) and at its end
+STEP_SUCCESS = np.concatenate(
+    [np.arange(12) >= 9, np.arange(7) == 6, np.isin(np.arange(5), [2, 4])]
+)
+
+
 def test_robomimic_export_reads_back_with_robomimics_dataset_class(tmp_path):
-    """robomimic's SequenceDataset gives back our actions, states, subtask labels, low-dim
-    observations and camera images (next_obs too) for every step of the train and valid
-    splits; datagen_info keeps the poses as 4x4 matrices."""
+    """robomimic's SequenceDataset, asked for MimicGen's observation keys (robot0_eef_pos,
+    robot0_gripper_qpos, object, agentview_image, robot0_eye_in_hand_image), gives back our
+    actions, states, subtask labels, rewards and dones, low-dim observations and camera
+    images (next_obs too) for every step of the train and valid splits; datagen_info keeps
+    the poses as 4x4 matrices; env_args name the cameras and their size as robomimic's
+    env_meta does, and the cameras' calibration is the store's."""
     import robomimic.utils.obs_utils as obs_utils
     from robomimic.utils.dataset import SequenceDataset
 
     store = synthetic_store(tmp_path / "g.zarr", cameras=CAMERAS)
-    path, figures = exporters.write(store, "robomimic", tmp_path, export_info(store))
-    images = {f"{c}_image": np.concatenate(list(exporters.episode_images(store, c)))
-              for c in CAMERAS}  # fmt: skip
+    path, figures = exporters.write(
+        store, "robomimic", tmp_path, export_info(store), step_success=STEP_SUCCESS
+    )
+    images = {k: np.concatenate(list(exporters.episode_images(store, c)))
+              for k, c in MIMICGEN_CAMERAS.items()}  # fmt: skip
     labels = np.concatenate(
         [np.arange(t) >= s for t, s in zip(LENGTHS, SUBTASK_STARTS, strict=True)]
     ).astype(np.int64)
+    dones = STEP_SUCCESS | np.isin(np.arange(sum(LENGTHS)), np.cumsum(LENGTHS) - 1)
     obs_utils.initialize_obs_utils_with_obs_specs(
-        {"obs": {"low_dim": list(OBS), "rgb": list(images)}}
+        {"obs": {"low_dim": list(MIMICGEN_OBS), "rgb": list(images)}}
     )
     seen = 0
     for split, demos in (("train", [0, 1]), ("valid", [2])):
         ds = SequenceDataset(
-            hdf5_path=str(path), obs_keys=[*OBS, *images],
-            dataset_keys=["actions", "states", "subtask_index"], seq_length=1,
-            hdf5_cache_mode="all", filter_by_attribute=split,
+            hdf5_path=str(path), obs_keys=[*MIMICGEN_OBS, *images],
+            dataset_keys=["actions", "states", "subtask_index", "rewards", "dones"],
+            seq_length=1, hdf5_cache_mode="all", filter_by_attribute=split,
         )  # fmt: skip
         assert len(ds) == sum(LENGTHS[i] for i in demos)
         k = 0
@@ -135,8 +159,10 @@ def test_robomimic_export_reads_back_with_robomimics_dataset_class(tmp_path):
                 np.testing.assert_array_equal(sample["actions"][0], ep["actions"][t])
                 np.testing.assert_array_equal(sample["states"][0], ep["env_state"][t])
                 assert sample["subtask_index"][0] == labels[start + t]
-                for key in OBS:
-                    np.testing.assert_array_equal(sample["obs"][key][0], ep[f"obs/{key}"][t])
+                assert sample["rewards"][0] == float(STEP_SUCCESS[start + t])
+                assert sample["dones"][0] == float(dones[start + t])
+                for key, ours in MIMICGEN_OBS.items():
+                    np.testing.assert_array_equal(sample["obs"][key][0], ep[f"obs/{ours}"][t])
                 for key, value in images.items():
                     np.testing.assert_array_equal(sample["obs"][key][0], value[start + t])
                     nxt = value[start + min(t + 1, LENGTHS[i] - 1)]
@@ -155,8 +181,18 @@ def test_robomimic_export_reads_back_with_robomimics_dataset_class(tmp_path):
         assert figures == {"image_bytes": stored}
         assert f["data"].attrs["total"] == sum(LENGTHS)
         env_args = json.loads(f["data"].attrs["env_args"])
-        assert env_args["env_kwargs"] == {"backend": "maniskill", "task": "stack_cube",
-                                          "robot": "panda"}  # fmt: skip
+        assert env_args["env_kwargs"] == {
+            "backend": "maniskill", "task": "stack_cube", "robot": "panda",
+            "camera_names": ["agentview", "robot0_eye_in_hand"], "camera_heights": 84,
+            "camera_widths": 96,
+        }  # fmt: skip
+        assert json.loads(f["data"].attrs["object_keys"]) == ["cubeA_pos"]
+        calibration = json.loads(f["data"].attrs["camera_calibration"])
+        theirs = store.attrs["camera_calibration"]
+        assert calibration == {k.removesuffix("_image"): theirs[c]
+                               for k, c in MIMICGEN_CAMERAS.items()}  # fmt: skip
+        assert f["data/demo_0/rewards"].dtype == np.float64
+        assert f["data/demo_0/dones"].dtype == np.int64
         info = f["data/demo_1/datagen_info"]
         np.testing.assert_allclose(info["eef_pose"][:], store.poses("eef_pose")[12:19])
         np.testing.assert_allclose(
@@ -181,13 +217,20 @@ def _lerobot_check(tmp_path, store, *flags: str) -> subprocess.CompletedProcess:
     python = REPO / ".venv-learners/bin/python"
     assert python.exists(), "the learners' check venv is missing: run scripts/setup.sh"
     info = export_info(store)
-    path, _ = exporters.write(store, "lerobot", tmp_path, info)
+    path, _ = exporters.write(store, "lerobot", tmp_path, info, step_success=STEP_SUCCESS)
     lengths = store.lengths
     obs = {k: store.data[f"obs/{k}"] for k in OBS}
     videos = {
         f"images/observation.images.{c}": np.concatenate(list(exporters.episode_images(store, c)))
         for c in store_cameras(store.attrs)
     }
+    calibration = {
+        f"calibration/observation.images.{c}/{part}": np.array(v[part])
+        for c, v in store.attrs["camera_calibration"].items() for part in ("intrinsics", "pose")
+    }  # fmt: skip
+    dones = STEP_SUCCESS | np.isin(np.arange(sum(LENGTHS)), np.cumsum(LENGTHS) - 1)
+    outcomes = {"next.reward": STEP_SUCCESS.astype(np.float32), "next.done": dones,
+                "next.success": STEP_SUCCESS}  # fmt: skip
     np.savez(tmp_path / "expected.npz", action=store.data["actions"],
              state=np.concatenate([obs["eef_pos"], obs["gripper_qpos"]], axis=1),
              env_state=obs["cubeA_pos"], lengths=lengths,
@@ -197,7 +240,8 @@ def _lerobot_check(tmp_path, store, *flags: str) -> subprocess.CompletedProcess:
              action_names=list(exporters.ACTION_NAMES),
              state_names=exporters.lerobot.state_names(store, ["eef_pos", "gripper_qpos"]),
              env_state_names=exporters.lerobot.state_names(store, ["cubeA_pos"]),
-             video_keys=[k.removeprefix("images/") for k in videos], **videos)  # fmt: skip
+             video_keys=[k.removeprefix("images/") for k in videos], **videos,
+             **calibration, **outcomes)  # fmt: skip
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     env |= {"HF_HOME": str(tmp_path / "hf")}
     return subprocess.run(
@@ -210,9 +254,11 @@ def _lerobot_check(tmp_path, store, *flags: str) -> subprocess.CompletedProcess:
 def test_lerobot_export_loads_with_lerobots_dataset_class(tmp_path):
     """lerobot 0.4.4's LeRobotDataset (in its own venv, offline) reads every frame back:
     action, observation.state (robot) and observation.environment_state (objects) equal
-    ours, subtask_index and its subtask string, each camera's frame decoded from the video
-    near ours and nearer than any other frame of the episode; episode lengths, names, fps,
-    image stats and the task string."""
+    ours, subtask_index and its subtask string, next.reward, next.done and next.success
+    (success after the step, done on success or at the episode's end), each camera's frame
+    decoded from the video near ours and nearer than any other frame of the episode; episode
+    lengths, names, fps, image stats, each camera's calibration in its feature's info and the
+    task string."""
     store = synthetic_store(tmp_path / "g.zarr", cameras=CAMERAS)
     res = _lerobot_check(tmp_path, store)
     assert res.returncode == 0 and res.stdout.strip().endswith("ok"), res.stderr[-3000:]
@@ -319,6 +365,80 @@ def test_subtask_labels_come_from_subtask_ends_or_term_signals(tmp_path):
     assert exporters.subtask_labels(bare, spec) is None
 
 
+def test_maniskill_trajectory_reads_back_with_maniskills_dataset_class(tmp_path):
+    """ManiSkill's own ManiSkillTrajectoryDataset reads our trajectory file: per step the
+    action, the observation before it (obs/<key>, the store's), the sparse success reward,
+    success, fail and terminated as the replay gives them; each trajectory's obs holds one
+    row more, the replay's observation after the last step; the json's env_kwargs ask for
+    ManiSkill's sparse reward. Replays stand in for the simulator's (no simulator runs)."""
+    from mani_skill.trajectory.dataset import ManiSkillTrajectoryDataset
+
+    from mimicgen_pipe.exporters.maniskill import Replayed
+
+    store = synthetic_store(tmp_path / "g.zarr")
+    layout = [("actors", "cubeA", 13), ("articulations", "panda", 7)]  # the 20 state values
+    replays = []
+    for i, (s, e) in enumerate(zip(store.episode_starts, store.episode_ends, strict=True)):
+        ep = store.episode(i)
+        states = np.concatenate([ep["env_state"], ep["env_state"][-1:] + 1])
+        last = {k: ep[f"obs/{k}"][-1] + 1 for k in OBS}
+        joint = np.zeros((e - s, 8), np.float32)
+        replays.append(Replayed(states, STEP_SUCCESS[s:e], joint, last))
+    env_info = {"env_id": "StackCube-v1", "max_episode_steps": 50,
+                "env_kwargs": {"obs_mode": "none", "control_mode": "pd_ee_delta_pose"}}  # fmt: skip
+    path, _ = exporters.write(store, "maniskill", tmp_path, export_info(store), replays=replays,
+                              layout=layout, env_info=env_info)  # fmt: skip
+    ds = ManiSkillTrajectoryDataset(str(path))
+    assert len(ds) == sum(LENGTHS)
+    np.testing.assert_array_equal(ds.rewards, STEP_SUCCESS.astype(np.float32))
+    np.testing.assert_array_equal(ds.success, STEP_SUCCESS)
+    np.testing.assert_array_equal(ds.terminated, STEP_SUCCESS)
+    assert ds.fail.dtype == bool and not ds.fail.any()
+    for row in (0, 11, 12, sum(LENGTHS) - 1):
+        item = ds[row]
+        np.testing.assert_array_equal(item["action"].numpy(), store.data["actions"][row])
+        for key in OBS:
+            np.testing.assert_array_equal(item["obs"][key], store.data[f"obs/{key}"][row])
+    assert ds.env_kwargs["reward_mode"] == "sparse"
+    with h5py.File(path, "r") as f:
+        for i, t in enumerate(LENGTHS):
+            obs = f[f"traj_{i}/obs/eef_pos"]
+            assert obs.shape == (t + 1, 3) and obs.dtype == np.float32
+            np.testing.assert_array_equal(obs[-1], replays[i].last_obs["eef_pos"])
+
+
+def test_camera_calibration_projects_as_the_cameras_see(tmp_path):
+    """Each camera's K has the focal length its field of view gives; agentview's pose puts
+    the point it looks at in the image centre, the table's far edge above it and the arm's
+    side (+y) on the image's right; the wrist camera sees a point ahead of it along the
+    fingers at its centre. A store's calibration with a wrong entry is one error naming
+    the key, before anything is written."""
+    from envs import _cameras
+    from mimicgen_pipe import camera_calibration as cc
+
+    h, w = 84, 96
+    agent = _cameras.calibration("agentview", h, w)
+    k = np.array(agent["intrinsics"])
+    assert k[0, 0] == k[1, 1] == pytest.approx(h / 2 / np.tan(_cameras.AGENTVIEW_FOV / 2))
+    assert (k[0, 2], k[1, 2]) == (w / 2, h / 2) and agent["frame"] == "world"
+    target = np.array(_cameras.AGENTVIEW_TARGET)
+    np.testing.assert_allclose(cc.project(agent, target), [[w / 2, h / 2]], atol=1e-9)
+    (u, v), (u2, v2) = cc.project(agent, [target + [0, 0.1, 0], target + [0, 0, 0.1]])
+    assert u > w / 2 and v2 < h / 2  # +y to the right, up is up
+    assert np.isnan(cc.project(agent, [[2.0, 0.0, 0.6]])).all()  # behind the camera
+    wrist = _cameras.calibration("eye_in_hand", h, w)
+    ahead = _cameras.WRIST_POS + 0.2 * _cameras.WRIST_FORWARD
+    assert wrist["frame"] == "panda_hand"
+    np.testing.assert_allclose(cc.project(wrist, ahead), [[w / 2, h / 2]], atol=1e-9)
+    for what in ("intrinsics", "pose"):
+        store = synthetic_store(tmp_path / f"{what}.zarr", cameras=CAMERAS)
+        bad = json.loads(json.dumps(store.attrs["camera_calibration"]))
+        bad["eye_in_hand"][what][1][1] = -1.0
+        broken = dataclasses.replace(store, attrs={**store.attrs, "camera_calibration": bad})
+        with pytest.raises(InputError, match=f"camera_calibration.eye_in_hand.{what}: expected"):
+            exporters.check(broken, "robomimic", export_info(store))
+
+
 def test_robomimic_file_reads_back_as_source_demos(tmp_path):
     store = synthetic_store(tmp_path / "g.zarr")
     path, _ = exporters.write(store, "robomimic", tmp_path, export_info(store))
@@ -383,11 +503,29 @@ def test_export_metrics_hold_each_formats_image_bytes_and_seconds(tmp_path):
     metrics = json.loads((tmp_path / "m.json").read_text())
     with h5py.File(tmp_path / "out/demos.hdf5", "r") as f:
         demos = [f[f"data/demo_{i}/obs"] for i in range(len(LENGTHS))]
-        stored = sum(g[f"{c}_image"].id.get_storage_size() for g in demos for c in CAMERAS)
+        stored = sum(g[k].id.get_storage_size() for g in demos for k in MIMICGEN_CAMERAS)
     videos = sum(p.stat().st_size for p in (tmp_path / "out/lerobot/videos").rglob("*.mp4"))
     assert metrics["robomimic_image_bytes"] == stored > 0
     assert metrics["lerobot_image_bytes"] == videos > 0
     assert metrics["robomimic_seconds"] > 0 and metrics["lerobot_seconds"] > 0
+
+
+@pytest.mark.sim
+def test_states_the_env_cannot_take_are_one_error_when_success_is_evaluated(tmp_path):
+    """With export.step_success, a store whose env_state is not the back end's state (the
+    synthetic store's 20 random values) is one error naming data/env_state, the width
+    expected and the way out, before anything is written."""
+    (tmp_path / "params.yaml").write_text(
+        PARAMS.replace("step_success: false", "step_success: true")
+    )
+    synthetic_store(tmp_path / "g.zarr")
+    res = cli("export", "--store", "g.zarr", "--formats", "robomimic", "--out", "out",
+              cwd=tmp_path, check=False)  # fmt: skip
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert "g.zarr: data/env_state has (20,) values a step, expected (" in lines[0]
+    assert "export.step_success: false" in lines[0]
+    assert not (tmp_path / "out").exists() and not (tmp_path / "metrics").exists()
 
 
 def test_unknown_format_in_params_is_rejected_at_load(tmp_path):
@@ -498,7 +636,9 @@ def maniskill_replay(traj, *extra):
 def test_maniskill_export_replays_in_maniskills_own_tool(pipeline):
     """Every exported episode replays to success with ManiSkill's replay_trajectory, both the
     delta-pose file and its pd_joint_pos copy, and the pd_joint_pos copy converts with -c;
-    actions and first states are ours."""
+    actions and first states are ours; the rewards (sparse success) are the replay's
+    success, and the robomimic export's rewards, evaluated from the stored states, the same;
+    obs holds the stored observations and one more after the last step."""
     cli("export", "--variant", "D1", "--formats", "maniskill,robomimic", cwd=pipeline)
     out = pipeline / "data/export/stack_cube_D1"
     store = read_store(pipeline / "data/generated/stack_cube_D1.zarr")
@@ -507,11 +647,19 @@ def test_maniskill_export_replays_in_maniskills_own_tool(pipeline):
     assert metrics["episodes"] == n and metrics["maniskill_replay_success"] == 1.0
     with h5py.File(out / "trajectory.h5", "r") as f:
         assert sorted(f) == [f"traj_{i}" for i in range(n)]
+        h5 = h5py.File(out / "demos.hdf5", "r")
         for i in range(n):
-            np.testing.assert_array_equal(f[f"traj_{i}/actions"][:], store.episode(i)["actions"])
-            robot = f[f"traj_{i}/env_states/articulations/panda"]
-            assert robot.shape[0] == len(store.episode(i)["actions"]) + 1
-            np.testing.assert_array_equal(robot[0], store.episode(i)["env_state"][0][-31:])
+            ep, traj = store.episode(i), f[f"traj_{i}"]
+            np.testing.assert_array_equal(traj["actions"][:], ep["actions"])
+            robot = traj["env_states/articulations/panda"]
+            assert robot.shape[0] == len(ep["actions"]) + 1
+            np.testing.assert_array_equal(robot[0], ep["env_state"][0][-31:])
+            np.testing.assert_array_equal(traj["rewards"][:], traj["success"][:])
+            assert traj["rewards"][-1] == 1.0 and not traj["fail"][:].any()
+            np.testing.assert_array_equal(traj["obs/eef_pos"][:-1], ep["obs/eef_pos"])
+            assert traj["obs/eef_pos"].shape == (len(ep["actions"]) + 1, 3)
+            np.testing.assert_array_equal(h5[f"data/demo_{i}/rewards"][:], traj["rewards"][:])
+        h5.close()
     meta = json.loads((out / "trajectory.json").read_text())
     assert meta["env_info"]["env_id"] == "StackCube-v1"
     assert [e["elapsed_steps"] for e in meta["episodes"]] == np.diff(

@@ -166,9 +166,10 @@ def test_a_policy_whose_inputs_our_env_lacks_is_refused_naming_them():
     hello = {"observations": LOW_DIM, "action_dim": 7, "meta": {"env_kwargs": env}}
     check_hello(spec(), hello, provided, env, ())  # fits
 
-    needs = LOW_DIM | {"object": {"shape": [10], "dtype": "float32"},
+    needs = LOW_DIM | {"robot0_joint_pos": {"shape": [7], "dtype": "float32"},
                        "frontview_image": {"shape": [84, 84, 3], "dtype": "uint8"}}  # fmt: skip
-    lacks = r"robomimic:/p: reads observations our env does not provide: object, frontview_image"
+    lacks = (r"robomimic:/p: reads observations our env does not provide: robot0_joint_pos, "
+             r"frontview_image")  # fmt: skip
     with pytest.raises(InputError, match=lacks + r" \(frontview_image: images of cameras it "
                        r"lacks; it has agentview, eye_in_hand\)"):  # fmt: skip
         check_hello(spec(), hello | {"observations": needs}, provided, env, CAMERAS)
@@ -229,6 +230,35 @@ def test_lerobot_inputs_are_the_export_s_frames(tmp_path):
         for feature, x in inputs.items():
             assert x.dtype == np.float32
             np.testing.assert_array_equal(x, np.array(table[feature][t], np.float32))
+
+
+def test_robomimic_inputs_are_the_export_s_obs(tmp_path):
+    """A policy trained on our robomimic export is given, at each step, the very obs/<key>
+    arrays the export wrote for that step (MimicGen's names, object included), images
+    under the export's names; and our own keys, as exports before those names had them."""
+    import h5py
+
+    from mimicgen_pipe import exporters
+    from tests.test_export import CAMERAS as SIZES
+    from tests.test_export import export_info, synthetic_store
+
+    store = synthetic_store(tmp_path / "g.zarr", cameras=SIZES)
+    info = export_info(store)
+    path, _ = exporters.write(store, "robomimic", tmp_path, info)
+    fmt = external.format_module("robomimic")
+    assert [fmt.image_key(c) for c in SIZES] == ["agentview_image", "robot0_eye_in_hand_image"]
+    images = {c: np.concatenate(list(exporters.episode_images(store, c))) for c in SIZES}
+    with h5py.File(path, "r") as f:
+        for demo, t, row in ((0, 0, 0), (0, 5, 5), (2, 4, 23)):
+            obs = {k: store.data[f"obs/{k}"][row] for k in info.obs_keys}
+            obs |= {f"{c}_image": images[c][row] for c in SIZES}
+            inputs = fmt.observation(obs, tuple(info.obs_keys))
+            written = f[f"data/demo_{demo}/obs"]
+            assert set(written) <= set(inputs) and "object" in written
+            for key in written:
+                np.testing.assert_array_equal(inputs[key], written[key][t], err_msg=key)
+            for key, value in obs.items():  # the names of earlier exports
+                np.testing.assert_array_equal(inputs[key], value)
 
 
 def test_a_policy_of_an_unknown_kind_is_refused_saying_what_was_expected(tmp_path):

@@ -31,7 +31,8 @@ pytestmark = pytest.mark.skipif(
 TASK = "stack_cube"
 # 9 train episodes, more steps than a batch: robomimic drops a last partial batch
 LENGTHS = (40,) * 10
-PARAMS = f"task: {TASK}\nexport: {{formats: [robomimic, lerobot]}}\n"
+# random states, which no simulator restores: no success evaluated per step
+PARAMS = f"task: {TASK}\nexport: {{formats: [robomimic, lerobot], step_success: false}}\n"
 # the contract's default cameras (a front view and a wrist view, as the paper's image agents
 # see) and size
 CAMERAS = ("agentview", "eye_in_hand")
@@ -146,7 +147,9 @@ def robomimic_losses(stdout: str) -> list[float]:
 def test_robomimic_trains_bc_rnn_on_our_export(exports, tmp_path, config, store, epochs, steps):
     """robomimic's own train.py (rollouts off) trains BC-RNN on our HDF5: it ends with
     "finished run successfully!" (it exits 0 on errors too), logs a finite loss per epoch that
-    falls, and writes a checkpoint from which robomimic rebuilds the policy."""
+    falls, and writes a checkpoint from which robomimic rebuilds the policy. The low-dim
+    config's observation keys are robomimic's own default BC config's, MimicGen's Stack
+    keys (robot0_eef_pos, robot0_eef_quat, robot0_gripper_qpos, object), unedited."""
     path = short_robomimic_config(config, tmp_path / "runs", epochs, steps)
     res = learner("python", "-m", "robomimic.scripts.train", "--config", str(path),
                   "--dataset", str(exports[store] / "demos.hdf5"), cwd=tmp_path)  # fmt: skip
@@ -163,6 +166,8 @@ def test_robomimic_trains_bc_rnn_on_our_export(exports, tmp_path, config, store,
     modalities = wanted["observation"]["modalities"]["obs"]
     assert report["algo_name"] == "bc"
     assert sorted(report["obs_keys"]) == sorted(modalities["low_dim"] + modalities["rgb"])
+    if config == "bc_rnn_low_dim":  # robomimic's (and MimicGen's Stack) keys, unedited
+        assert modalities["low_dim"] == report["stock_low_dim"], report["stock_low_dim"]
     assert report["action_shape"] == [7] and report["action_finite"]
     assert any(k.startswith("policy.nets.rnn") for k in report["model_keys"]), report
 
@@ -202,6 +207,39 @@ def test_lerobot_trains_act_on_our_export(exports, tmp_path, store):
         "observation.state": [9],  # eef_pos, eef_quat, gripper_qpos
         "observation.environment_state": [23],  # the cubes' poses and relative positions
         **images,
+    }
+    assert report["output_features"] == {"action": [7]}
+    assert report["loaded_equal"] == report["stored_tensors"] > 0
+
+
+@pytest.mark.slow
+def test_lerobot_trains_diffusion_on_our_export(exports, tmp_path):
+    """lerobot-train trains Diffusion Policy (configs/lerobot/diffusion.json, made tiny: a
+    small U-Net, no learning-rate warm-up) on our LeRobot export, observation.state and
+    observation.environment_state as inputs: it exits 0, logs a finite loss every step, lower
+    over the last steps than over the first (a noise-prediction loss at random diffusion
+    steps: averaged over three), and writes a policy directory that lerobot loads back."""
+    steps = 8
+    root = exports["generated"] / "lerobot"
+    res = learner("lerobot-train", f"--config_path={REPO / 'configs/lerobot/diffusion.json'}",
+                  f"--dataset.root={root}", f"--output_dir={tmp_path / 'dp'}",
+                  "--policy.down_dims=[16,32]", "--policy.diffusion_step_embed_dim=16",
+                  "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=0",
+                  "--batch_size=16", f"--steps={steps}", f"--save_freq={steps}", "--log_freq=1",
+                  "--num_workers=0", cwd=tmp_path)  # fmt: skip
+    log = res.stdout + res.stderr
+    assert res.returncode == 0, log[-3000:]
+    losses = lerobot_losses(log)
+    assert len(losses) == steps and all(map(math.isfinite, losses)), losses
+    assert np.mean(losses[-3:]) < np.mean(losses[:3]), losses
+    policy = tmp_path / f"dp/checkpoints/{steps:06d}/pretrained_model"
+    res = learner("python", str(CHECKS / "check_lerobot_checkpoint.py"), str(policy), cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    report = json.loads(res.stdout.splitlines()[-1])
+    assert report["type"] == "diffusion"
+    assert report["input_features"] == {
+        "observation.state": [9],
+        "observation.environment_state": [23],
     }
     assert report["output_features"] == {"action": [7]}
     assert report["loaded_equal"] == report["stored_tensors"] > 0

@@ -111,7 +111,46 @@ def test_images_are_the_states_rendered(
     for t in (0, 5, n - 1):  # row t is env_state row t
         fresh = renderer.images(source.data["env_state"][t])
         assert all(np.array_equal(images[c][t], fresh[c]) for c in CAMERAS)
+    assert view.attrs["camera_calibration"] == envs.camera_calibration(CAMERAS, SIZE, SIZE)
+    for camera, calib in view.attrs["camera_calibration"].items():  # the renderer's cameras
+        k, world_to_camera = renderer_camera(renderer, backend, camera)
+        np.testing.assert_allclose(calib["intrinsics"], k, rtol=1e-5)
+        pose = np.asarray(calib["pose"])
+        assert calib["frame"] == ("world" if camera == "agentview" else "panda_hand")
+        if camera == "eye_in_hand":  # after the last picture's state
+            pose = hand_pose(renderer, backend) @ pose
+        np.testing.assert_allclose(np.linalg.inv(pose)[:3], world_to_camera, atol=2e-5)
     renderer.close()
+
+
+def hand_pose(renderer, backend: str) -> np.ndarray:
+    """The panda_hand link's 4x4 world pose in the renderer's scene now."""
+    from mimicgen_pipe import poses
+
+    if backend == "maniskill":
+        hand = renderer._env.unwrapped.agent.robot.links_map["panda_hand"].pose
+        return hand.to_transformation_matrix()[0].numpy().astype(np.float64)
+    env = renderer._env
+    pos, xyzw = env._sim.getLinkState(env._robot, renderer._hand, computeForwardKinematics=True)[
+        4:6
+    ]
+    return poses.pose_from_pq(np.array(pos), np.roll(np.array(xyzw), 1))
+
+
+def renderer_camera(renderer, backend: str, camera: str) -> tuple[np.ndarray, np.ndarray]:
+    """(K, the 3x4 world-to-camera transform, OpenCV axes) of ``camera`` as the renderer
+    pictures with it: SAPIEN's own matrices, or those of PyBullet's view and projection
+    matrices (OpenGL's column-major, camera axes x right, y up, z back)."""
+    if backend == "maniskill":
+        sapien = renderer._render_cameras[camera]
+        return sapien.get_intrinsic_matrix(), sapien.get_extrinsic_matrix()
+    view, proj = renderer._agentview if camera == "agentview" else (
+        renderer._wrist_view(), renderer._wrist_proj)  # fmt: skip
+    w, h = renderer._size
+    f = np.reshape(proj, (4, 4)).T[1, 1] * h / 2  # 1 / tan(fov_y / 2), in pixels
+    k = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]])
+    gl = np.reshape(view, (4, 4)).T
+    return k, (np.diag([1.0, -1.0, -1.0, 1.0]) @ gl)[:3]
 
 
 def test_same_bytes_with_one_and_two_workers(pybullet_store, tmp_path, monkeypatch):

@@ -18,6 +18,7 @@ import numpy as np
 
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.exporters.maniskill import Replayed
+from mimicgen_pipe.observations import low_dim_observation
 
 EPISODES_PER_BLOCK = 8  # each block replays on a freshly rebuilt scene, as generation's
 
@@ -41,8 +42,9 @@ def _init_worker(job: ReplayJob) -> None:
 
 def replay(env, initial_state: np.ndarray, actions: np.ndarray) -> Replayed:
     """Restore ``initial_state``, execute ``actions`` (T, 7) with ``env.step`` and record the
-    flat state before and after every step (T + 1, S), success after each step (T,) and the
-    equivalent pd_joint_pos actions (T, 8): arm drive targets [rad], gripper action."""
+    flat state before and after every step (T + 1, S), success after each step (T,), the
+    equivalent pd_joint_pos actions (T, 8): arm drive targets [rad], gripper action, and the
+    low-dim observation after the last step."""
     env.set_state(initial_state)
     # the arm's drive targets as SAPIEN holds them (the lean step sets them there directly)
     arm = [j._objs[0] for j in env.unwrapped.agent.controller.controllers["arm"].joints]
@@ -54,7 +56,10 @@ def replay(env, initial_state: np.ndarray, actions: np.ndarray) -> Replayed:
         success.append(env.is_success())
         targets = np.concatenate([j.drive_target for j in arm]).astype(np.float32)
         joint.append(np.concatenate([targets, action[-1:]]))
-    return Replayed(np.stack(states), np.asarray(success, bool), np.stack(joint))
+    last = low_dim_observation(
+        env.eef_pose(), env.gripper_state(), env.object_poses(), env.spec.objects
+    )
+    return Replayed(np.stack(states), np.asarray(success, bool), np.stack(joint), last)
 
 
 def _replay_block(block: list[tuple[np.ndarray, np.ndarray]]) -> list[Replayed]:

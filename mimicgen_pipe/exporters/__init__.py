@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from mimicgen_pipe.camera_calibration import store_calibration
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.outputs import OutputKind, directory_kind
 from mimicgen_pipe.registry import choices, load
@@ -130,9 +131,11 @@ def export_dir_kind() -> OutputKind:
 
 
 def check(store: EpisodeStore, fmt: str, info: ExportInfo) -> None:
-    """InputError naming the store, the format and what it lacks; nothing is written."""
+    """InputError naming the store, the format and what it lacks (or the key of its camera
+    calibration that is wrong); nothing is written."""
     if store.n_episodes == 0:
         raise no_episodes(store.path, store.attrs)
+    store_calibration(store.attrs, str(store.path))  # its own error, naming the key
     why = exporter(fmt).check(store, info)
     if why:
         raise InputError(f"{store.path}: cannot export as {fmt}: {why}")
@@ -185,6 +188,31 @@ def episode_images(store: EpisodeStore, camera: str) -> Iterator[np.ndarray]:
     view = open_store(store.path)
     for i in range(store.n_episodes):
         yield view.read_rows(image_key(camera), [i])
+
+
+def step_outcomes(store: EpisodeStore, step_success: np.ndarray | None = None) -> dict:
+    """Each step's outcome, (N_steps,) each, as robomimic's datasets record it: ``success``
+    (bool), whether the task is achieved in the state after the step; ``reward`` (float64),
+    the sparse success reward r(s') = 1.0 where it is, else 0.0; ``done`` (bool), on success
+    or at the episode's last step (robomimic's done_mode 2).
+
+    ``step_success``: (N_steps,) bool, the task's success after every step, as the export
+    stage evaluates it on the back end (stages/export.py); without it only the last step's
+    is known, the episode's ``success`` (meta/episodes; a store without it: every episode
+    succeeded), and every earlier step counts as not achieved. ValueError for an array of
+    another shape."""
+    n = int(store.episode_ends[-1]) if store.n_episodes else 0
+    last = store.episode_ends - 1
+    if step_success is None:
+        success = np.zeros(n, bool)
+        success[last] = store.episodes.get("success", np.ones(store.n_episodes, bool))
+    else:
+        success = np.asarray(step_success)
+        if success.shape != (n,) or success.dtype != bool:
+            raise ValueError(f"step_success: {success.dtype} {success.shape}, expected bool ({n},)")
+    done = success.copy()
+    done[last] = True
+    return {"success": success, "reward": success.astype(np.float64), "done": done}
 
 
 def subtask_labels(

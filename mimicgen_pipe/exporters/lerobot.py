@@ -12,6 +12,9 @@ Per frame (``data/chunk-000/file-000.parquet``), world frame, float32:
 - with several arms (ExportInfo.arms): ``action`` holds each arm's 7 in turn, named
   ``<arm>.dx`` ...; ``observation.state`` each arm's keys (``<arm>_eef_pos`` ...); one
   ``subtask_index.<arm>`` per arm (-1 where the arm holds without a subtask);
+- ``next.reward`` float32, ``next.done`` and ``next.success`` bool, LeRobot's features of a
+  frame's outcome (exporters.step_outcomes): the sparse success reward after the frame's
+  action, done on success or at the episode's last frame, success after the action;
 - LeRobot's ``timestamp`` [s], ``frame_index``, ``episode_index``, ``index`` (global) and
   ``task_index``.
 
@@ -19,7 +22,10 @@ Per camera of the store, a video feature ``observation.images.<camera>``:
 ``videos/observation.images.<camera>/chunk-000/file-000.mp4`` (AV1 by libsvtav1, yuv420p, at
 the control frequency, LeRobot's encoder settings; a new file past 200 MB), every episode's
 frames one after the other; an episode's ``videos/<key>/from_timestamp`` and
-``to_timestamp`` [s] in ``meta/episodes`` say where in its file it lies.
+``to_timestamp`` [s] in ``meta/episodes`` say where in its file it lies. Its feature's
+``info`` in info.json holds the camera's calibration where the store has it:
+``camera.intrinsics`` (3x3 K [px]), ``camera.fov_y`` [rad], ``camera.frame``, ``camera.pose``
+(4x4, the camera in that frame [m]) and ``camera.axes`` (mimicgen_pipe/camera_calibration.py).
 
 ``meta/``: ``info.json`` (features with per-dimension names and the videos' ``video.*``
 info, fps = control frequency), ``tasks.parquet`` (the task sentence),
@@ -46,6 +52,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from mimicgen_pipe.camera_calibration import store_calibration
 from mimicgen_pipe.store import EpisodeStore, store_cameras
 
 FILE_NAME = "lerobot"  # the dataset's folder in the export directory
@@ -58,6 +65,7 @@ EPISODES_PATH = "meta/episodes/chunk-000/file-000.parquet"
 CHUNKS_SIZE = 1000  # files per chunk folder, LeRobot's
 VIDEO_FILE_MB = 200  # LeRobot's video_files_size_in_mb: the next episode starts a new file
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)  # LeRobot's stats keys q01 ... q99
+NEXT = {"next.reward": "float32", "next.done": "bool", "next.success": "bool"}  # LeRobot's
 INDEX_FEATURES = {  # LeRobot's default per-frame features
     "timestamp": {"dtype": "float32", "shape": [1], "names": None},
     "frame_index": {"dtype": "int64", "shape": [1], "names": None},
@@ -324,12 +332,16 @@ class Videos:
     size: int
 
 
-def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
+def write(
+    store: EpisodeStore, path: Path, info, step_success: np.ndarray | None = None
+) -> dict[str, int]:
     """``store`` as a LeRobot dataset in the new folder ``path`` (the module's layout), with
-    the export's ``info`` (exporters.ExportInfo); its figures: image_bytes, the videos' size."""
+    the export's ``info`` (exporters.ExportInfo); ``step_success``: the task's success after
+    every step where the export stage evaluated it (exporters.step_outcomes). Its figures:
+    image_bytes, the videos' size."""
     path = Path(path)
     (path / "meta").mkdir(parents=True)
-    frames, features, labelled = frame_columns(store, info)
+    frames, features, labelled = frame_columns(store, info, step_success)
     write_frames(path, frames, features)
     episodes, stats = episode_columns(store, info, frames)
     videos = write_videos(path, store, info.fps)
@@ -342,10 +354,12 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
     return {"image_bytes": videos.size}
 
 
-def frame_columns(store: EpisodeStore, info) -> tuple[dict[str, np.ndarray], dict[str, dict], bool]:
+def frame_columns(
+    store: EpisodeStore, info, step_success: np.ndarray | None = None
+) -> tuple[dict[str, np.ndarray], dict[str, dict], bool]:
     """Every frame's columns (the module's list), their info.json features, and whether the
     frames carry subtask labels (a store with term signals or subtask ends)."""
-    from mimicgen_pipe.exporters import subtask_labels
+    from mimicgen_pipe.exporters import step_outcomes, subtask_labels
 
     n_steps = int(store.episode_ends[-1])
     lengths = store.lengths
@@ -361,6 +375,12 @@ def frame_columns(store: EpisodeStore, info) -> tuple[dict[str, np.ndarray], dic
         "index": np.arange(n_steps, dtype=np.int64),
         "task_index": np.zeros(n_steps, np.int64),
     }
+    outcomes = step_outcomes(store, step_success)
+    frames |= {
+        "next.reward": outcomes["reward"].astype(np.float32),
+        "next.done": outcomes["done"],
+        "next.success": outcomes["success"],
+    }
     features: dict[str, dict] = {
         feature: {"dtype": "float32", "shape": [frames[feature].shape[1]],
                   "names": state_names(store, keys)}
@@ -368,6 +388,7 @@ def frame_columns(store: EpisodeStore, info) -> tuple[dict[str, np.ndarray], dic
     }  # fmt: skip
     action_names = info.action_names
     features["action"] = {"dtype": "float32", "shape": [len(action_names)], "names": action_names}
+    features |= {key: {"dtype": dtype, "shape": [1], "names": None} for key, dtype in NEXT.items()}
     labels = {
         ("subtask_index" if not info.arms else f"subtask_index.{a}"): subtask_labels(
             store, info.subtasks, a
@@ -416,8 +437,12 @@ def episode_columns(
 
 
 def write_videos(path: Path, store: EpisodeStore, fps: int) -> Videos:
-    """Each camera's video (write_video), at ``fps`` [Hz], and what it adds to the dataset."""
+    """Each camera's video (write_video), at ``fps`` [Hz], and what it adds to the dataset;
+    a camera's feature info carries its calibration, ``camera.<key>`` for each key of
+    mimicgen_pipe/camera_calibration.py's (where the store has it)."""
     from mimicgen_pipe.exporters import episode_images
+
+    calibration = store_calibration(store.attrs, str(store.path))
 
     episodes: dict[str, list] = {}
     stats: dict[str, dict] = {}
@@ -433,6 +458,8 @@ def write_videos(path: Path, store: EpisodeStore, fps: int) -> Videos:
             episodes[f"stats/{key}/{stat}"] = [p[stat].tolist() for p in per_episode]
         stats[key] = aggregate_image_stats(per_episode)
         features[key] = video_feature(frame_size, fps)
+        calib = calibration.get(camera, {})
+        features[key]["info"] |= {f"camera.{k}": v for k, v in calib.items()}
         size += written
     return Videos(episodes, stats, features, size)
 

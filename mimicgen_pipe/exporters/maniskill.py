@@ -8,20 +8,26 @@ episodes' own ``pd_ee_delta_pose`` actions, and ``trajectory.pd_joint_pos.h5`` w
 motion as ``pd_joint_pos`` actions, the control mode ManiSkill's converter starts from (its
 ``-c`` converts pd_joint_pos and pd_joint_delta_pos trajectories, not delta-pose ones).
 
-Per episode ``traj_<i>``: ``actions`` (T, A) float32; ``env_states/actors/<name>`` (T+1, 13)
-and ``env_states/articulations/<name>`` (T+1, 13 + 2 dof) float32; ``success``,
-``terminated``, ``truncated`` (T,) bool. The ``.json``: ``env_info`` (env_id, env_kwargs,
-max_episode_steps) and ``episodes`` [{episode_id, episode_seed, reset_kwargs, control_mode,
-elapsed_steps, success}]. Replay them with ``--use-first-env-state`` (the scene comes from
-the stored state; the seed alone gives ManiSkill's D0 scene, not ours).
+Per episode ``traj_<i>``, as ManiSkill's RecordEpisode writes them: ``actions`` (T, A)
+float32; ``env_states/actors/<name>`` (T+1, 13) and ``env_states/articulations/<name>``
+(T+1, 13 + 2 dof) float32; ``obs/<key>`` (T+1, d) float32, the low-dim observations by the
+store's names (mimicgen_pipe.observations: world frame, quaternions wxyz) before every
+action and after the last (from the replay); ``rewards`` (T,) float32, the sparse success
+reward (1.0 after a step that leaves the task achieved, ManiSkill's reward_mode "sparse");
+``success``, ``fail`` (no task of ours has a failure state: all False), ``terminated``
+(= success) and ``truncated`` (T,) bool, all from the replay. The ``.json``: ``env_info``
+(env_id, env_kwargs with reward_mode "sparse", max_episode_steps) and ``episodes``
+[{episode_id, episode_seed, reset_kwargs, control_mode, elapsed_steps, success}]. Replay them
+with ``--use-first-env-state`` (the scene comes from the stored state; the seed alone gives
+ManiSkill's D0 scene, not ours).
 """
 
 from __future__ import annotations
 
 import json
 import re
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
@@ -39,11 +45,14 @@ REQUIRED = ("actions", "env_state")
 class Replayed:
     """One episode replayed in the simulator: states (T + 1, S) float32, flat, before the
     first and after every action; success (T,) after each action; joint_actions (T, A) the
-    same motion as pd_joint_pos actions (arm drive targets [rad], gripper action)."""
+    same motion as pd_joint_pos actions (arm drive targets [rad], gripper action);
+    last_obs: the low-dim observation after the last action (mimicgen_pipe.observations'
+    keys -> (d,) float32), which the store does not hold."""
 
     states: np.ndarray
     success: np.ndarray
     joint_actions: np.ndarray
+    last_obs: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
 def check(store: EpisodeStore, info) -> str | None:
@@ -71,6 +80,19 @@ def _split_states(states: np.ndarray, layout: Sequence[tuple[str, str, int]]) ->
     return out
 
 
+def _observations(ep: Mapping[str, np.ndarray], rep: Replayed) -> dict[str, np.ndarray]:
+    """A trajectory's ``obs/<key>``, (T + 1, d) float32: the store's observation before each
+    action, then the replay's after the last one."""
+    keys = [k.removeprefix("obs/") for k in ep if k.startswith("obs/") and not k.endswith("_image")]
+    missing = [k for k in keys if k not in rep.last_obs]
+    if missing:
+        raise ValueError(f"the replay's last observation lacks {missing}")
+    return {
+        k: np.concatenate([ep[f"obs/{k}"], np.asarray(rep.last_obs[k])[None]]).astype(np.float32)
+        for k in keys
+    }
+
+
 def _write_file(
     path: Path,
     store: EpisodeStore,
@@ -91,8 +113,12 @@ def _write_file(
                 for name, value in parts.items():
                     g.create_dataset(f"env_states/{kind}/{name}", data=value)
             g.create_dataset("success", data=rep.success)
+            g.create_dataset("fail", data=np.zeros(len(rep.success), bool))
+            g.create_dataset("rewards", data=rep.success.astype(np.float32))
             g.create_dataset("terminated", data=rep.success)
             g.create_dataset("truncated", data=np.zeros(len(rep.success), bool))
+            for key, rows in _observations(store.episode(i), rep).items():
+                g.create_dataset(f"obs/{key}", data=rows)
             seed = int(seeds[i])
             episodes.append(
                 {
@@ -104,7 +130,9 @@ def _write_file(
                     "success": bool(rep.success[-1]),
                 }
             )
-    info = dict(env_info, env_kwargs=dict(env_info["env_kwargs"], control_mode=control_mode))
+    # rewards are the sparse success reward, which ManiSkill's reward_mode "sparse" gives
+    kwargs = dict(env_info["env_kwargs"], control_mode=control_mode, reward_mode="sparse")
+    info = dict(env_info, env_kwargs=kwargs)
     meta = {"env_info": info, "source_type": "mimicgen-pipe", "episodes": episodes}
     path.with_suffix(".json").write_text(json.dumps(meta, indent=2))
 

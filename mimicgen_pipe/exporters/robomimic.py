@@ -1,19 +1,30 @@
 """robomimic HDF5, with MimicGen's per-demo ``datagen_info`` (the source stage reads such a
 file back as source demos: mimicgen_pipe/robomimic_source.py).
 
-Layout written (robomimic's dataset schema; MimicGen's generated files add datagen_info)::
+Layout written (robomimic's dataset schema, MimicGen's key names; MimicGen's generated files
+add datagen_info)::
 
-  data                  attrs: total (steps), env_args (JSON: env_name, type, env_kwargs),
-                        subtasks (JSON: the task's subtask names, in order)
+  data                  attrs: total (steps), env_args (JSON: env_name, type, env_kwargs;
+                        with images env_kwargs also has camera_names, camera_heights and
+                        camera_widths, as robomimic's env_meta), subtasks (JSON: the task's
+                        subtask names, in order), object_keys (JSON: what obs/object
+                        concatenates), camera_calibration (JSON, with images: robomimic
+                        camera name -> mimicgen_pipe/camera_calibration.py's calibration)
   data/demo_<i>         attrs: num_samples, seed, success
       actions           (T, 7) float32, the normalised delta-pose actions
       states            (T, S) float32, the back end's flat simulator state before each action
-      rewards, dones    (T,) float64 / int64: 1 at the last step of a successful demo / last step
+      rewards           (T,) float64: 1.0 where the task is achieved after the step, else 0.0
+      dones             (T,) int64: 1 on success or at the last step (robomimic's done_mode 2;
+                        exporters.step_outcomes)
       subtask_index     (T,) int64: the subtask each step belongs to, an index into
                         data.attrs["subtasks"] (exporters.subtask_labels)
-      obs/<key>         (T, ...) float32, the low-dim observations (mimicgen_pipe.observations)
-      obs/<camera>_image  (T, H, W, 3) uint8 RGB, one per camera of the store, row t seen
-                        with obs/<key> row t; HDF5 chunks of 4 images, gzip level 4
+      obs/<key>         (T, ...) float32, the low-dim observations by MimicGen's names
+                        (obs_name): robot0_eef_pos, robot0_eef_quat (wxyz), robot0_gripper_qpos,
+                        the objects' keys as the store names them (cubeA_pos, ...), and
+                        ``object``: train.obs_keys' object keys concatenated in their order
+      obs/<camera>_image  (T, H, W, 3) uint8 RGB, one per camera of the store (agentview_image,
+                        robot0_eye_in_hand_image), row t seen with obs/<key> row t; HDF5
+                        chunks of 4 images, gzip level 4
       next_obs/<key>    obs/<key> one step on (the last step repeated); an image's is a
                         virtual dataset over its obs/ rows (no second copy of the images)
       datagen_info/eef_pose, target_pose, object_poses/<obj>   (T, 4, 4) float64, world frame
@@ -26,7 +37,8 @@ A task with several arms (ExportInfo.arms) has actions (T, 7 x arms), each arm's
 order of ``data.attrs["arms"]`` (JSON), named by ``data.attrs["action_names"]`` (JSON:
 ``left.dx`` ... ``right.gripper``); per arm ``subtask_index/<arm>`` (-1 where the arm holds
 without a subtask), ``datagen_info/eef_pose/<arm>``, ``target_pose/<arm>`` and
-``gripper_action/<arm>``; the observations carry each arm's keys prefixed with its name.
+``gripper_action/<arm>``; arm i's own observations are ``robot<i>_eef_pos`` ... (robosuite's
+names for a task's robots), its other keys keep the arm's name (``left_eef_to_cubeA_pos``).
 
 A store without term signals or subtask ends (a source store brought in from a file) has no
 ``subtask_index`` and no ``subtasks`` attribute.
@@ -35,12 +47,15 @@ A store without term signals or subtask ends (a source store brought in from a f
 from __future__ import annotations
 
 import json
+import re
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import h5py
 import numpy as np
 
-from mimicgen_pipe.store import EpisodeStore, image_key, store_cameras
+from mimicgen_pipe.camera_calibration import store_calibration
+from mimicgen_pipe.store import EpisodeStore, store_cameras
 from mimicgen_pipe.taskspec import arm_key
 
 # Images: gzip (HDF5's own deflate filter, which every HDF5 reader has; h5py's lzf is h5py's
@@ -54,6 +69,56 @@ IMAGE_COMPRESSION = {"compression": "gzip", "compression_opts": 4}
 FILE_NAME = "demos.hdf5"  # what write() makes in the export directory
 WRITES = r"demos\.hdf5"
 REQUIRED = ("actions", "env_state", "eef_pose", "target_pose", "gripper")
+OBJECT_KEY = "object"  # MimicGen's (robosuite's) concatenated object observation
+# an arm's own observations, which robosuite names robot<i>_<key>
+_ROBOT_KEY = re.compile(r"(?:(?P<arm>[A-Za-z0-9]+)_)?(?P<key>eef_pos|eef_quat|gripper_qpos)")
+_HAND_CAMERAS = ("eye_in_hand",)  # robosuite names a robot's wrist camera robot0_eye_in_hand
+
+
+def obs_name(key: str, arms: Sequence[str] = ()) -> str:
+    """The export's (MimicGen's) name of our observation key: eef_pos, eef_quat and
+    gripper_qpos are robot0_eef_pos ...; with several ``arms``, <arm>_eef_pos is
+    robot<i>_eef_pos, i the arm's index in ``arms``; a camera's ``<camera>_image`` is
+    ``camera_name(camera)_image``; every other key (the objects') keeps its name."""
+    if key.endswith("_image"):
+        return f"{camera_name(key.removesuffix('_image'))}_image"
+    m = _ROBOT_KEY.fullmatch(key)
+    if m is None or (m["arm"] is None) != (not arms) or (arms and m["arm"] not in arms):
+        return key
+    return f"robot{list(arms).index(m['arm']) if arms else 0}_{m['key']}"
+
+
+def camera_name(camera: str) -> str:
+    """robosuite's name of a camera: the wrist camera is the robot's, robot0_eye_in_hand."""
+    return f"robot0_{camera}" if camera in _HAND_CAMERAS else camera
+
+
+def arms_of(keys: Sequence[str]) -> tuple[str, ...]:
+    """The arms of a task of several from its observation keys (``<arm>_eef_pos`` ...), in
+    the order they first appear (mimicgen_pipe.observations lists them in the task's)."""
+    found = (m["arm"] for k in keys if (m := _ROBOT_KEY.fullmatch(k)) and m["arm"])
+    return tuple(dict.fromkeys(found))
+
+
+def object_keys(obs_keys: Sequence[str]) -> list[str]:
+    """The keys of ``obs_keys`` that ``obs/object`` concatenates: the objects' (those
+    LeRobot's export puts in observation.environment_state), in order."""
+    from mimicgen_pipe.exporters.lerobot import is_robot_key
+
+    return [k for k in obs_keys if not is_robot_key(k)]
+
+
+def robomimic_obs(
+    obs: Mapping[str, np.ndarray], obs_keys: Sequence[str], arms: Sequence[str] = ()
+) -> dict[str, np.ndarray]:
+    """The export's ``obs/`` arrays of T steps from ours (key -> (T, ...) array): every key
+    by its :func:`obs_name`, and ``object``, :func:`object_keys` of ``obs_keys`` flattened and
+    concatenated, float32 (T, D) (absent when there are none)."""
+    out = {obs_name(k, arms): np.asarray(v) for k, v in obs.items()}
+    parts = [np.asarray(obs[k]).reshape(len(obs[k]), -1) for k in object_keys(obs_keys)]
+    if parts:
+        out[OBJECT_KEY] = np.concatenate(parts, axis=1).astype(np.float32)
+    return out
 
 
 def _required(info) -> list[str]:
@@ -96,13 +161,62 @@ def _write_images(g: h5py.Group, key: str, images: np.ndarray) -> int:
     return int(obs.id.get_storage_size())
 
 
-def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
-    from mimicgen_pipe.exporters import episode_images, subtask_labels
+def env_args(store: EpisodeStore, info) -> dict:
+    """``data.attrs["env_args"]``: the export's (exporters.ExportInfo.env_args), with a store
+    of images its cameras as robomimic's env_meta names them in ``env_kwargs``:
+    ``camera_names`` (robosuite's names, their images ``obs/<name>_image``), and
+    ``camera_heights``, ``camera_widths`` [px] (one number for cameras of one size, as
+    robomimic writes them, else one per camera)."""
+    args = dict(info.env_args)
+    cameras = store_cameras(store.attrs)
+    if cameras:
+        heights, widths = ([size[i] for size in cameras.values()] for i in (0, 1))
+        args["env_kwargs"] = dict(args["env_kwargs"]) | {
+            "camera_names": [camera_name(c) for c in cameras],
+            "camera_heights": heights[0] if len(set(heights)) == 1 else heights,
+            "camera_widths": widths[0] if len(set(widths)) == 1 else widths,
+        }
+    return args
+
+
+def _write_obs(g: h5py.Group, ep: Mapping[str, np.ndarray], info) -> None:
+    """A demo's low-dim ``obs/`` and ``next_obs/`` (robomimic_obs of its observations)."""
+    ours = {k.removeprefix("obs/"): v for k, v in ep.items() if k.startswith("obs/")}
+    ours = {k: v for k, v in ours.items() if not k.endswith("_image")}
+    for key, value in robomimic_obs(ours, info.obs_keys, info.arms).items():
+        g.create_dataset(f"obs/{key}", data=value)
+        # the observation after each step; the store has none after the last one, which
+        # repeats (robomimic reads next_obs by default, BC ignores it)
+        g.create_dataset(f"next_obs/{key}", data=np.concatenate([value[1:], value[-1:]]))
+
+
+def _write_datagen_info(g: h5py.Group, store: EpisodeStore, i: int, info, matrices) -> None:
+    """A demo's MimicGen ``datagen_info`` (the poses as 4x4 matrices) and src_demo_inds."""
+    ep = store.episode(i)
+    s, e = store.episode_starts[i], store.episode_ends[i]
+    info_g = g.create_group("datagen_info")
+    for key, rows in matrices.items():
+        info_g.create_dataset(key, data=rows[s:e])
+    for key in (k for k in store.data if k.startswith("subtask_signals/")):
+        name = key.removeprefix("subtask_signals/")
+        info_g.create_dataset(f"subtask_term_signals/{name}", data=ep[key].astype(np.int64))
+    for a in info.label_arms:
+        info_g.create_dataset(arm_key("gripper_action", a), data=ep[arm_key("gripper", a)][:, None])
+    if "source_demo" in store.episodes:
+        g.create_dataset("src_demo_inds", data=store.episodes["source_demo"][i])
+
+
+def write(
+    store: EpisodeStore, path: Path, info, step_success: np.ndarray | None = None
+) -> dict[str, int]:
+    """``store`` as robomimic HDF5 at ``path``; ``step_success``: the task's success after
+    every step where the export stage evaluated it (exporters.step_outcomes). Its figures:
+    image_bytes, the bytes the images take in the file."""
+    from mimicgen_pipe.exporters import episode_images, step_outcomes, subtask_labels
 
     objects = [k.removeprefix("object_poses/") for k in store.data if k.startswith("object_poses/")]
-    signals = [k for k in store.data if k.startswith("subtask_signals/")]
-    images = {image_key(c): episode_images(store, c) for c in store_cameras(store.attrs)}
-    obs_keys = [k for k in store.data if k.startswith("obs/") and k not in images]
+    cameras = store_cameras(store.attrs)
+    images = {f"obs/{camera_name(c)}_image": episode_images(store, c) for c in cameras}
     success = store.episodes.get("success", np.ones(store.n_episodes, bool))
     arms = info.label_arms
     own = [arm_key(k, a) for k in ("eef_pose", "target_pose") for a in arms]
@@ -110,55 +224,47 @@ def write(store: EpisodeStore, path: Path, info) -> dict[str, int]:
     matrices = {key: store.poses(key) for key in pose_keys}  # (N_steps, 4, 4) each
     labels = {arm_key("subtask_index", a): subtask_labels(store, info.subtasks, a) for a in arms}
     labelled = all(v is not None for v in labels.values())
+    outcomes = step_outcomes(store, step_success)
     image_bytes = 0
     with h5py.File(path, "w") as f:
         data = f.create_group("data")
         for i in range(store.n_episodes):
             ep = store.episode(i)
-            steps = len(ep["actions"])
+            s, e = store.episode_starts[i], store.episode_ends[i]
             g = data.create_group(f"demo_{i}")
-            g.attrs["num_samples"] = steps
+            g.attrs["num_samples"] = int(e - s)
             g.attrs["success"] = bool(success[i])
             if "seed" in store.episodes:
                 g.attrs["seed"] = int(store.episodes["seed"][i])
             g.create_dataset("actions", data=ep["actions"])
             g.create_dataset("states", data=ep["env_state"])
-            last = np.zeros(steps, np.int64)
-            last[-1] = 1
-            g.create_dataset("rewards", data=(last * bool(success[i])).astype(np.float64))
-            g.create_dataset("dones", data=last)
-            s, e = store.episode_starts[i], store.episode_ends[i]
+            g.create_dataset("rewards", data=outcomes["reward"][s:e])
+            g.create_dataset("dones", data=outcomes["done"][s:e].astype(np.int64))
             if labelled:
                 for key, rows in labels.items():
                     g.create_dataset(key, data=rows[s:e])
             for key, per_episode in images.items():
                 image_bytes += _write_images(g, key, next(per_episode))
-            for key in obs_keys:
-                g.create_dataset(key, data=ep[key])
-                # the observation after each step; the store has none after the last one,
-                # which repeats (robomimic reads next_obs by default, BC ignores it)
-                nxt = np.concatenate([ep[key][1:], ep[key][-1:]])
-                g.create_dataset("next_" + key, data=nxt)
-            info_g = g.create_group("datagen_info")
-            for key in pose_keys:
-                info_g.create_dataset(key, data=matrices[key][s:e])
-            for key in signals:
-                name = key.removeprefix("subtask_signals/")
-                info_g.create_dataset(f"subtask_term_signals/{name}", data=ep[key].astype(np.int64))
-            for a in arms:
-                info_g.create_dataset(
-                    arm_key("gripper_action", a), data=ep[arm_key("gripper", a)][:, None]
-                )
-            if "source_demo" in store.episodes:
-                g.create_dataset("src_demo_inds", data=store.episodes["source_demo"][i])
-        data.attrs["total"] = int(store.episode_ends[-1])
-        data.attrs["env_args"] = json.dumps(info.env_args)
-        if labelled:
-            data.attrs["subtasks"] = json.dumps([sub.name for sub in info.subtasks])
-        if info.arms:
-            data.attrs["arms"] = json.dumps(list(info.arms))
-            data.attrs["action_names"] = json.dumps(info.action_names)
+            _write_obs(g, ep, info)
+            _write_datagen_info(g, store, i, info, matrices)
+        _write_data_attrs(data, store, info, labelled)
         train, valid = split(store.n_episodes, info.valid_fraction)
         for name, idx in (("train", train), ("valid", valid)):
             f.create_dataset(f"mask/{name}", data=np.array([f"demo_{i}" for i in idx], dtype="S"))
     return {"image_bytes": image_bytes}
+
+
+def _write_data_attrs(data: h5py.Group, store: EpisodeStore, info, labelled: bool) -> None:
+    """The ``data`` group's attrs (the module's list)."""
+    data.attrs["total"] = int(store.episode_ends[-1])
+    data.attrs["env_args"] = json.dumps(env_args(store, info))
+    data.attrs["object_keys"] = json.dumps(object_keys(info.obs_keys))
+    if labelled:
+        data.attrs["subtasks"] = json.dumps([sub.name for sub in info.subtasks])
+    if info.arms:
+        data.attrs["arms"] = json.dumps(list(info.arms))
+        data.attrs["action_names"] = json.dumps(info.action_names)
+    calibration = store_calibration(store.attrs, str(store.path))
+    if calibration:
+        named = {camera_name(c): v for c, v in calibration.items()}
+        data.attrs["camera_calibration"] = json.dumps(named)

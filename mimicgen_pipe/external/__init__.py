@@ -19,7 +19,9 @@ nothing of mimicgen_pipe at its top; it defines
   framework's names, from one step's observation (mimicgen_pipe.observations' keys, and
   ``<camera>_image`` for cameras), built as the format's exporter builds a frame
   (``obs_keys``: params' train.obs_keys, the keys the export wrote);
-- ``image_key(camera) -> str``: the framework's name of a camera's images;
+- ``image_key(camera) -> str``: the framework's name of a camera's images; optionally
+  ``image_keys(camera) -> tuple[str, ...]``, every name a policy may read them by (a
+  format whose exports renamed them), ``image_key``'s first;
 - ``load(path, task)`` (server side, importing numpy, torch and the framework alone): the
   policy, with ``observations`` ({key: {"shape", "dtype"}}, as ``observation`` names them),
   ``action_dim``, ``meta`` (what the checkpoint says of its data: ``env_kwargs`` where it
@@ -279,8 +281,10 @@ def policy_cameras(
     reads, and their (height, width) [px], None for none; InputError for images of several
     sizes (the rollouts picture every camera at one size)."""
     fmt, needed = format_module(spec.format), hello["observations"]
-    cameras = tuple(c for c in known if fmt.image_key(c) in needed)
-    sizes = {c: tuple(needed[fmt.image_key(c)]["shape"][:2]) for c in cameras}
+    names = getattr(fmt, "image_keys", lambda c: (fmt.image_key(c),))
+    read = {c: [k for k in names(c) if k in needed] for c in known}
+    cameras = tuple(c for c in known if read[c])
+    sizes = {c: tuple(needed[read[c][0]]["shape"][:2]) for c in cameras}
     if len(set(sizes.values())) > 1:
         raise InputError(f"{spec.name}: reads images of several sizes {sizes}; expected one")
     return cameras, (next(iter(sizes.values())) if sizes else None)

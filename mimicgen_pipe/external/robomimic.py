@@ -1,5 +1,8 @@
 """A robomimic checkpoint (``.pth``, as robomimic's ``train.py`` saves it), trained on our
-robomimic export: its inputs are the export's ``obs/<key>`` names, our observation keys.
+robomimic export: its inputs are the export's ``obs/<key>`` names, MimicGen's
+(``robot0_eef_pos``, ``object``, ``agentview_image``, ``robot0_eye_in_hand_image``, ...: the
+exporter's own ``robomimic_obs``); a checkpoint trained on an export written before those
+names, on our own keys (``eef_pos``, ``eye_in_hand_image``), is given them too.
 
 The server loads it with ``torch.load(weights_only=True)``, which rebuilds tensors,
 numbers, strings, lists and dicts alone (robomimic's checkpoints hold nothing else), and
@@ -73,13 +76,26 @@ def checkpoint_config(ckpt: dict) -> dict:
 
 
 def observation(obs: dict[str, np.ndarray], obs_keys: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """The export's ``obs/<key>`` arrays are our observation's, key for key (a camera's
-    images too: ``<camera>_image``, uint8 HWC)."""
-    return dict(obs)
+    """One step's ``obs/<key>`` arrays as the export writes them (a camera's images too,
+    uint8 HWC), and our own keys as earlier exports named them."""
+    from mimicgen_pipe.exporters.robomimic import arms_of, robomimic_obs
+
+    step = {k: np.asarray(v)[None] for k, v in obs.items()}
+    named = robomimic_obs(step, obs_keys, arms_of(list(obs)))
+    return dict(obs) | {k: v[0] for k, v in named.items()}
 
 
 def image_key(camera: str) -> str:
-    return f"{camera}_image"
+    """The export's name of a camera's images (robot0_eye_in_hand_image, agentview_image)."""
+    from mimicgen_pipe.exporters.robomimic import camera_name
+
+    return f"{camera_name(camera)}_image"
+
+
+def image_keys(camera: str) -> tuple[str, ...]:
+    """Every name a checkpoint may read a camera's images by: the export's, then the one
+    exports written before MimicGen's names gave them."""
+    return tuple(dict.fromkeys((image_key(camera), f"{camera}_image")))
 
 
 class RobomimicPolicy:

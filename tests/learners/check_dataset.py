@@ -1,8 +1,9 @@
 """Load an exported dataset with lerobot's LeRobotDataset
 (offline) and compare every frame with the arrays in EXPECTED.npz, camera images (decoded from
-the videos) and subtask labels included. With --policies, also build lerobot's ACT and
-Diffusion configs from the dataset's features, as lerobot-train does, and run their feature
-checks. Prints "ok" when all match.
+the videos), subtask labels and next.reward, next.done, next.success included, and each
+video feature's camera calibration with calibration/<video key>/{intrinsics,pose}. With
+--policies, also build lerobot's ACT and Diffusion configs from the dataset's features, as
+lerobot-train does, and run their feature checks. Prints "ok" when all match.
 
 usage: check_dataset.py DATASET_DIR EXPECTED.npz [--policies]
 
@@ -53,6 +54,12 @@ assert ds.meta.names["observation.environment_state"] == expected["env_state_nam
 assert ds.meta.video_keys == expected["video_keys"].tolist(), ds.meta.video_keys
 for key in ds.meta.video_keys:
     assert ds.meta.stats[key]["mean"].shape == (3, 1, 1), ds.meta.stats[key]["mean"].shape
+    info = ds.meta.features[key]["info"]
+    for part in ("intrinsics", "pose"):
+        assert np.array_equal(info[f"camera.{part}"], expected[f"calibration/{key}/{part}"]), key
+for key, dtype in (("next.reward", "float32"), ("next.done", "bool"), ("next.success", "bool")):
+    feature = ds.meta.features[key]
+    assert (feature["dtype"], list(feature["shape"])) == (dtype, [1]), (key, feature)
 subtasks = expected["subtasks"].tolist()
 assert ds.meta.subtasks.index.tolist() == subtasks, ds.meta.subtasks
 task = str(expected["task"])
@@ -71,6 +78,8 @@ for i in range(len(ds)):
     label = int(expected["subtask_index"][i])
     assert item["subtask_index"].item() == label, (i, item["subtask_index"])
     assert item["subtask"] == subtasks[label], (i, item["subtask"])
+    for key in ("next.reward", "next.done", "next.success"):
+        assert item[key].item() == expected[key][i], (i, key, item[key])
     t = i - starts[ep]
     for key in ds.meta.video_keys:
         image = item[key].numpy()  # (3, H, W) float32 in [0, 1]

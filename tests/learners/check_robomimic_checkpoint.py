@@ -2,7 +2,8 @@
 train.py wrote, with robomimic's own loader, and run it on the first step of the dataset's
 first demo. The checkpoint is read with torch.load(weights_only=True) (a pickle that needs
 more is an error) and handed to robomimic as a dict. Prints one JSON line: algo_name,
-obs_keys, model_keys, the action's shape and whether it is finite.
+obs_keys, model_keys, the action's shape and whether it is finite, and stock_low_dim: the
+low-dim observation keys of robomimic's own default BC config (config_factory("bc")).
 
 usage: check_robomimic_checkpoint.py CHECKPOINT.pth DATASET.hdf5
 """
@@ -15,6 +16,7 @@ import numpy as np
 import robomimic.utils.file_utils as file_utils
 import robomimic.utils.obs_utils as obs_utils
 import torch
+from robomimic.config import config_factory
 
 checkpoint, dataset = sys.argv[1:]
 ckpt_dict = torch.load(checkpoint, map_location="cpu", weights_only=True)
@@ -30,5 +32,6 @@ report = {
     "model_keys": sorted(ckpt["model"]),
     "action_shape": list(np.shape(action)),
     "action_finite": bool(np.isfinite(action).all()),
+    "stock_low_dim": list(config_factory("bc").observation.modalities.obs.low_dim),
 }
 print(json.dumps(report))
