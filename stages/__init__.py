@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
 import sys
 from pathlib import Path
 
@@ -31,6 +32,13 @@ def add_generated_arguments(p: argparse.ArgumentParser) -> None:
         help="generated store (default: data/generated/<task>_<variant>.zarr; its failed "
         "attempts are read from <name>_failed.zarr beside it)",
     )
+
+
+def episode_count(text: str) -> int:
+    """--episodes: a whole number, at least 1."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number, at least 1")
+    return int(text)
 
 
 def check_variants(params: Params, path: str) -> None:
@@ -89,6 +97,24 @@ def stage_params(args: argparse.Namespace) -> Params:
         return params
     keys = list(spec.default_obs_keys)
     return dataclasses.replace(params, train=dataclasses.replace(params.train, obs_keys=keys))
+
+
+def check_data(params: Params, data: str, named: bool) -> None:
+    """InputError, before any work, unless --data names training data the task has:
+    "source" or one of its reset variants; or, where the store or policies are given by path
+    (``named``), any name of letters, digits, _ and - (it goes into output file names)."""
+    if named:
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]*", data):
+            raise InputError(
+                f"--data {data!r}: expected letters, digits, _ and - only (it names the outputs)"
+            )
+        return
+    variants = envs.task_spec(params.backend, params.task).variants
+    if data != "source" and data not in variants:
+        raise InputError(
+            f'--data {data!r}: expected "source" or a reset variant of {params.task} '
+            f"({', '.join(variants)})"
+        )
 
 
 def output_path(given: str | None, default: Path) -> Path:

@@ -21,7 +21,7 @@ from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.training import load_rollout_policy
-from stages import add_selection_arguments, output_path, stage_params
+from stages import add_selection_arguments, check_data, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
+    check_data(params, args.data, named=args.policies is not None)
     name = f"{args.data}_on_{args.variant}"
     policies = Path(args.policies or layout.policy_dir(params.task, args.data))
     metrics_path = output_path(args.metrics, layout.metrics_file("evaluate", params.task, name))

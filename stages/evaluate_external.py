@@ -38,14 +38,7 @@ from mimicgen_pipe.external import (
 from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.params import Params
-from stages import add_selection_arguments, stage_params
-
-
-def episode_count(text: str) -> int:
-    """--episodes: a whole number, at least 1."""
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number, at least 1")
-    return int(text)
+from stages import add_selection_arguments, check_data, episode_count, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -124,6 +117,7 @@ def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
+    check_data(params, args.data, named=False)
     fmt, path = parse_policy(args.policy)
     e = params.evaluate
     episodes = e.episodes if args.episodes is None else args.episodes

@@ -17,7 +17,7 @@ from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, free_space_error, output_set
 from mimicgen_pipe.store import store_cameras
-from stages import add_selection_arguments, stage_params
+from stages import add_selection_arguments, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -39,8 +39,8 @@ def run(args: argparse.Namespace) -> None:
         exporters.exporter(fmt)  # InputError naming the formats for an unknown one
     store = exporters.read(store_path, params.task)  # images stay on disk, read per episode
     name = store_path.name.removesuffix(".zarr")
-    out = Path(args.out or layout.export_dir(name))
-    metrics_path = Path(args.metrics or layout.metrics_file("export", name))
+    out = output_path(args.out, layout.export_dir(name))
+    metrics_path = output_path(args.metrics, layout.metrics_file("export", name))
     spec = envs.task_spec(store.attrs["backend"], params.task)
     info = exporters.export_info(
         store.attrs, spec, params.train.obs_keys, params.train.val_fraction

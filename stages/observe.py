@@ -5,6 +5,7 @@ as an observed store."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import time
 from pathlib import Path
@@ -23,12 +24,13 @@ from mimicgen_pipe.camera_images import (
     render_blocks,
     write_observed,
 )
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set, store_kind
 from mimicgen_pipe.params import data_params
 from mimicgen_pipe.store import open_store, store_writer
-from stages import add_selection_arguments, stage_params
+from stages import add_selection_arguments, episode_count, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -39,6 +41,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the store to observe (default: data/generated/<task>_<variant>.zarr); a "
         "generated, failed or source store",
     )
+    p.add_argument(
+        "--episodes",
+        type=episode_count,
+        help="observe the store's first N episodes (default: params observe.episodes)",
+    )
     p.add_argument("--out", help="observed store (default: data/observed/<task>_<variant>.zarr)")
     p.add_argument(
         "--metrics", help="metrics JSON (default: metrics/observe_<task>_<variant>.json)"
@@ -47,11 +54,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
+    if args.episodes is not None:  # in place of observe.episodes, held to the store below
+        observe = dataclasses.replace(params.observe, episodes=args.episodes)
+        params = dataclasses.replace(params, observe=observe)
     o = params.observe
     store_path = Path(args.store or layout.generated_store(params.task, args.variant))
-    out = Path(args.out or layout.observed_store(params.task, args.variant))
-    metrics_path = Path(args.metrics or layout.metrics_file("observe", params.task, args.variant))
+    out = output_path(args.out, layout.observed_store(params.task, args.variant))
+    metrics_path = output_path(
+        args.metrics, layout.metrics_file("observe", params.task, args.variant)
+    )
     view = open_store(store_path, task=params.task)
+    if args.episodes is not None and args.episodes > view.n_episodes:
+        raise InputError(f"--episodes {args.episodes}: {store_path} has {view.n_episodes} episodes")
     n = check_input(view, params, args.params, envs.check_cameras)
     a = view.attrs
     kind = a["kind"]

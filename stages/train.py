@@ -8,18 +8,16 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
-import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.params import Params, range_error
 from mimicgen_pipe.training import POLICY_DIR, policy_training, train_policies, training_metrics
-from stages import add_selection_arguments, output_path, stage_params
+from stages import add_selection_arguments, check_data, output_path, stage_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -101,13 +99,8 @@ def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
             raise InputError(
                 f"--{key}: expected one path per --data ({len(data)}), got {len(given)}"
             )
-    spec = envs.task_spec(params.backend, params.task)
-    for d in data:
-        if args.store is not None:  # any name for a store given: it names the policy
-            if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]*", d):
-                raise InputError(f"--data {d!r}: expected letters, digits, _ and - only")
-        elif d != "source":
-            envs.check_variant(spec, d)
+    for d in data:  # with --store, any name: it names the policy
+        check_data(params, d, named=args.store is not None)
     t = params.task
     return [
         PolicyToTrain(

@@ -248,3 +248,23 @@ def test_source_stops_with_one_error_when_the_demonstrator_falls_short(tmp_path,
         source.run(args)
     assert seeds[-1] == 39 and not (tmp_path / "s.zarr").exists()
     assert not (tmp_path / "s.json").exists()
+
+
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["train", "--data", "D9"], "--data 'D9': expected \"source\" or a reset variant of"),
+        (["evaluate", "--data", "../x", "--variant", "D0"], "--data '../x': expected \"source\""),
+        (["evaluate", "--data", "a/b", "--variant", "D0", "--policies", "p"],
+         "--data 'a/b': expected letters, digits, _ and - only"),
+        (["evaluate_external", "--policy", "robomimic:input/m.pth", "--data", "D9",
+          "--variant", "D0"],
+         "--data 'D9': expected \"source\" or a reset variant of stack_cube (D0, D1)"),
+    ],
+)  # fmt: skip
+def test_data_is_training_data_the_task_has(tmp_path, args, expected):
+    """--data goes into output file names: "source" or a reset variant, or with the store or
+    policies given by path a plain name; anything else is refused before any work."""
+    (tmp_path / "input").mkdir()
+    (tmp_path / "input/m.pth").write_bytes(b"")
+    assert expected in run_bad(tmp_path, *args)

@@ -48,10 +48,10 @@ def random_store(path: Path, backend: str, task: str, lengths: list[int]) -> Pat
 
 
 def observe(
-    work: Path, store: Path, out: str, backend: str, task: str, **keys: object
+    work: Path, store: Path, out: str, backend: str, task: str, *args: str, **keys: object
 ) -> tuple[int, Path]:
-    """Run the observe stage in this process (exit status, output path); ``keys``: observe
-    params besides small images on one worker."""
+    """Run the observe stage in this process (exit status, output path); ``args``: more of
+    its command line; ``keys``: observe params besides small images on one worker."""
     section = {"height": SIZE, "width": SIZE, "workers": 1} | keys
     (work / "params.yaml").write_text(
         f"task: {task}\nbackend: {backend}\nobserve: {json.dumps(section)}\n"
@@ -59,7 +59,7 @@ def observe(
     code = main(
         ["observe", "--params", str(work / "params.yaml"), "--variant", "D0",
          "--store", str(store), "--out", str(work / out),
-         "--metrics", str(work / f"{out}.json")]
+         "--metrics", str(work / f"{out}.json"), *args]
     )  # fmt: skip
     return code, work / out
 
@@ -188,6 +188,25 @@ def test_a_resumed_run_gives_the_same_bytes(pybullet_store, tmp_path, monkeypatc
     assert rendered == [[2, 3]]  # the first block came from the work directory
     assert digest(again) == digest(whole)
     assert not (tmp_path / ".again.zarr.work").exists()
+
+
+def test_episodes_on_the_command_line_stand_in_for_the_params(
+    pybullet_store, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    code, out = observe(
+        tmp_path, pybullet_store, "two.zarr", "pybullet", "stack", "--episodes", "2"
+    )
+    assert code == 0
+    view = open_store(out)
+    assert view.n_episodes == 2 and view.shape("obs/agentview_image") == (5 + 4, SIZE, SIZE, 3)
+    assert view.attrs["observe"]["episodes"] == 2
+    code, out = observe(
+        tmp_path, pybullet_store, "nine.zarr", "pybullet", "stack", "--episodes", "9"
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and f"--episodes 9: {pybullet_store} has 4 episodes" in err
+    assert not out.exists()
 
 
 @pytest.mark.parametrize(
