@@ -26,6 +26,7 @@ PIPELINES = {
     "quickstart": Pipeline("quickstart/params.yaml", "quickstart/report/summary.json"),
     "suite": Pipeline("suite/params.yaml", "suite/report/summary.json"),
     "transit": Pipeline("transit/params.yaml", "transit/report/summary.json"),
+    "transfer": Pipeline("transfer/params.yaml", "transfer/report/summary.json"),
 }
 
 

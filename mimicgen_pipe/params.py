@@ -209,17 +209,17 @@ class ManiSkillParams:
 
 @dataclass(frozen=True)
 class TransferParams:
-    """The robot-transfer matrix in dvc.yaml (paper E): every task x variant x robot is
-    generated from the same Panda source demos, ``attempts`` fixed attempts each, on
+    """The robot-transfer matrix of transfer/dvc.yaml (paper E): every task x variant x robot
+    is generated from the same Panda source demos, ``attempts`` fixed attempts each, on
     ``backend`` (a back end under envs/); the other generation knobs come from ``generate``.
-    maniskill_robots: arms the main ManiSkill task is also generated with, from the main
-    run's source demos."""
+    maniskill_robots: arms the main ManiSkill task is also generated with (``attempts``
+    each), from the main run's source demos."""
 
     backend: str = "pybullet"
     tasks: list[str] = field(default_factory=lambda: ["stack", "stack_three", "square_peg"])
     variants: list[str] = field(default_factory=lambda: ["D0", "D1"])
     robots: list[str] = field(default_factory=lambda: ["panda", "iiwa", "xarm6"])
-    maniskill_robots: list[str] = field(default_factory=lambda: ["xarm6"])
+    maniskill_robots: list[str] = field(default_factory=lambda: ["panda", "xarm6"])
     attempts: int = 200
 
 

@@ -38,7 +38,13 @@ import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("mimicgen_pipe", "envs", "stages")
-PIPELINES = ("dvc.yaml", "suite/dvc.yaml", "quickstart/dvc.yaml", "transit/dvc.yaml")
+PIPELINES = (
+    "dvc.yaml",
+    "suite/dvc.yaml",
+    "quickstart/dvc.yaml",
+    "transit/dvc.yaml",
+    "transfer/dvc.yaml",
+)
 # a project .py file, or a task file by template: what a manifest holds
 TASK_OR_CODE = re.compile(
     r"^(\.\./)?((mimicgen_pipe|envs|stages)/[^$]*|envs/[^/]+/tasks/\$\{[\w.]+\})\.py$"

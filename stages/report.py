@@ -1,8 +1,9 @@
 """report: report.md and report.html from the metrics present, beside the paper's numbers:
 the default pipeline's (metrics/, plots/, media/ -> report/, with summary.json, its headline
 numbers, and the figures of its policies over training) or, with --suite, the task suite's
-(suite/metrics/ -> suite/report/) or, with --transit, linear vs planned transit's
-(transit/metrics/ -> transit/report/)."""
+(suite/metrics/ -> suite/report/), with --transit, linear vs planned transit's
+(transit/metrics/ -> transit/report/), or, with --transfer, robot transfer's
+(transfer/metrics/ -> transfer/report/). Each writes its headline numbers to summary.json."""
 
 from __future__ import annotations
 
@@ -12,11 +13,16 @@ from pathlib import Path
 
 import envs
 from mimicgen_pipe import layout
-from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import atomic_directory, claim, directory_kind
-from mimicgen_pipe.report import build_report, build_suite_report, build_transit_report
-from mimicgen_pipe.report.blocks import render_html, render_markdown
+from mimicgen_pipe.params import Params
+from mimicgen_pipe.report import (
+    build_report,
+    build_suite_report,
+    build_transfer_report,
+    build_transit_report,
+)
+from mimicgen_pipe.report.blocks import Block, render_html, render_markdown
 from mimicgen_pipe.report.curves import FIGURES, draw_curves, read_curves
 from mimicgen_pipe.report.inputs import (
     MetricsSet,
@@ -26,10 +32,16 @@ from mimicgen_pipe.report.inputs import (
     read_metrics_folder,
     read_runs,
 )
-from mimicgen_pipe.report.paper import load_paper_results
+from mimicgen_pipe.report.paper import PaperResults, load_paper_results
 from mimicgen_pipe.report.profiles import read_profile_runs
 from mimicgen_pipe.report.scaling import DATASET_SIZE, SCALING, draw_dataset_size
-from mimicgen_pipe.report.summary import SUMMARY, headline_numbers
+from mimicgen_pipe.report.summary import (
+    SUMMARY,
+    headline_numbers,
+    suite_headline_numbers,
+    transfer_headline_numbers,
+    transit_headline_numbers,
+)
 from stages import add_selection_arguments, output_path, stage_params
 
 REPORT_FILES = ("report.md", "report.html", SUMMARY, *FIGURES, DATASET_SIZE)
@@ -40,23 +52,31 @@ REPORT_DIR = directory_kind(
 )
 SUITE = Path("suite")  # the task suite's metrics/ and report/ (suite/dvc.yaml)
 TRANSIT = Path("transit")  # linear vs planned transit's (transit/dvc.yaml)
+TRANSFER = Path("transfer")  # robot transfer's (transfer/dvc.yaml)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_selection_arguments(p)
-    p.add_argument(
+    which = p.add_mutually_exclusive_group()
+    which.add_argument(
         "--suite",
         action="store_true",
         help="the task suite's report (params suite.*: DGR, object transfer, policies, "
         "ablations) instead of the default pipeline's",
     )
-    p.add_argument(
+    which.add_argument(
         "--transit",
         action="store_true",
         help="linear vs planned transit's report (params planned_transit.*) instead",
     )
+    which.add_argument(
+        "--transfer",
+        action="store_true",
+        help="robot transfer's report (params transfer.*: DGR per arm) instead",
+    )
     p.add_argument(
-        "--metrics", help="metrics folder (default: metrics, suite/metrics or transit/metrics)"
+        "--metrics",
+        help="metrics folder (default: metrics, or suite/, transit/ or transfer/metrics)",
     )
     p.add_argument(
         "--ablations",
@@ -74,15 +94,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="reference/paper_results.yaml",
         help="the paper's numbers (default: reference/paper_results.yaml)",
     )
-    p.add_argument("--out", help="report folder (default: report, suite/report or transit/report)")
+    p.add_argument(
+        "--out", help="report folder (default: report, or suite/, transit/ or transfer/report)"
+    )
 
 
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
-    suite, transit = args.suite, args.transit
-    if suite and transit:
-        raise InputError("--suite and --transit: one report at a time")
-    home = SUITE if suite else TRANSIT if transit else None  # None: the default pipeline's
+    suite, transit, transfer = args.suite, args.transit, args.transfer
+    # None: the default pipeline's
+    home = SUITE if suite else TRANSIT if transit else TRANSFER if transfer else None
     metrics_dir = Path(args.metrics or (home / "metrics" if home else "metrics"))
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
     out = output_path(args.out, home / "report" if home else layout.report_dir())
@@ -92,24 +113,17 @@ def run(args: argparse.Namespace) -> None:
     ms = read_metrics_folder(metrics_dir)
     images: dict[str, bytes] = {}  # image path in the report -> PNG bytes embedded in the HTML
     figures: dict[str, bytes] = {}  # figure file written beside the report -> PNG bytes
-    summary: dict[str, float] | None = None  # the default pipeline's headline numbers
-    if transit:
+    if transfer:
+        blocks = build_transfer_report(params, ms, paper)
+        summary = transfer_headline_numbers(params, ms)
+        title, runs = "Robot transfer", 0
+    elif transit:
         blocks = build_transit_report(params, ms)
+        summary = transit_headline_numbers(params, ms)
         title, runs = "Linear vs planned transit", 0
     elif suite:
-        u = params.suite
-        specs = [envs.task_spec(u.backend, task) for task in u.tasks]
-        ablations = {task: read_runs(ablations_dir / task) for task in u.tasks}
-        scaling_dir = metrics_dir / SCALING
-        scaling = read_metrics_folder(scaling_dir) if scaling_dir.is_dir() else MetricsSet(())
-        figures = draw_dataset_size(params, scaling)
-        images = dict(figures)
-        # the main task's policies beside the suite's, when trained under other profiles
-        main = params.task not in u.tasks and params.backend == u.backend
-        own = [envs.task_spec(u.backend, params.task)] if main else []
-        profiles = ([*own, *specs], read_profile_runs(metrics_dir))
-        blocks = build_suite_report(params, specs, ms, ablations, paper, scaling, figures, profiles)
-        title, runs = "MimicGen task suite", sum(len(r) for r in ablations.values())
+        blocks, figures, summary, runs = _suite(params, ms, metrics_dir, ablations_dir, paper)
+        images, title = dict(figures), "MimicGen task suite"
     else:
         variants = params.generate.variants
         heatmaps = read_heatmaps(args.plots, params.task, variants)
@@ -134,3 +148,22 @@ def run(args: argparse.Namespace) -> None:
         f"report: {len(ms.files)} metrics files, {runs} ablation runs, "
         f"{len(images) - len(figures)} heat maps, {len(figures)} figures -> {out}"
     )
+
+
+def _suite(
+    params: Params, ms: MetricsSet, metrics_dir: Path, ablations_dir: Path, paper: PaperResults
+) -> tuple[list[Block], dict[str, bytes], dict[str, float], int]:
+    """The suite's report blocks, its figures, headline numbers and number of ablation runs."""
+    u = params.suite
+    specs = [envs.task_spec(u.backend, task) for task in u.tasks]
+    ablations = {task: read_runs(ablations_dir / task) for task in u.tasks}
+    scaling_dir = metrics_dir / SCALING
+    scaling = read_metrics_folder(scaling_dir) if scaling_dir.is_dir() else MetricsSet(())
+    figures = draw_dataset_size(params, scaling)
+    # the main task's policies beside the suite's, when trained under other profiles
+    main = params.task not in u.tasks and params.backend == u.backend
+    own = [envs.task_spec(u.backend, params.task)] if main else []
+    profiles = ([*own, *specs], read_profile_runs(metrics_dir))
+    blocks = build_suite_report(params, specs, ms, ablations, paper, scaling, figures, profiles)
+    runs = sum(len(r) for r in ablations.values())
+    return blocks, figures, suite_headline_numbers(params, ms), runs

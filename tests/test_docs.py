@@ -158,6 +158,20 @@ def test_every_params_key_has_a_row_in_stages_and_params() -> None:
     assert undocumented == []
 
 
+def _shell_commands(line: str) -> list[list[str]]:
+    """The words of each command of a shell line (split at ``&&``, ``;``, ``|``, quotes
+    respected, comments dropped; a redirection cuts a command there)."""
+    lexer = shlex.shlex(line, posix=True, punctuation_chars=";&|")
+    lexer.whitespace_split = True
+    commands: list[list[str]] = [[]]
+    for word in lexer:
+        if word and set(word) <= set(";&|"):
+            commands.append([])
+        else:
+            commands[-1].append(word)
+    return commands
+
+
 def doc_commands(
     tool: str, pages: list[Path] = PAGES, root: Path = REPO
 ) -> list[tuple[str, list[str]]]:
@@ -169,8 +183,7 @@ def doc_commands(
     for page in pages:
         for block in FENCE.finditer(page.read_text()):
             for line in block.group(0).replace("\\\n", " ").splitlines()[1:-1]:
-                for part in re.split(r"&&|;|\|", line):
-                    words = shlex.split(part, comments=True)
+                for words in _shell_commands(line):
                     if tool not in words:
                         continue
                     argv = words[words.index(tool) + 1 :]

@@ -27,15 +27,28 @@ def considered(graph: nx.DiGraph, pipeline: str) -> set:
     return stages.union(*(nx.descendants(graph, s) for s in stages))
 
 
-def param_names(stage) -> list[str]:
-    return [n for d in stage.deps if hasattr(d, "params") for n in (d.params or d.hash_info.value)]
+def param_names(stage, params_file: str | None = None) -> list[str]:
+    """The params a stage declares (only those of ``params_file``, a path from the
+    repository root, when given)."""
+    return [
+        n
+        for d in stage.deps
+        if hasattr(d, "params") and (params_file is None or Path(d.fs_path) == REPO / params_file)
+        for n in (d.params or d.hash_info.value)
+    ]
 
 
-def rerun(graph: nx.DiGraph, key: str, pipeline: str = "dvc.yaml") -> set[str]:
-    """Stages a bare `dvc exp run -S key=...` re-runs: those listing ``key`` (or its
-    section) as a param, and everything downstream of them."""
+def rerun(
+    graph: nx.DiGraph, key: str, pipeline: str = "dvc.yaml", params_file: str | None = None
+) -> set[str]:
+    """Stages `dvc exp run <pipeline> -S <params_file>:key=...` re-runs: those listing ``key``
+    (or its section) as a param of that file, and everything downstream of them."""
     pool = considered(graph, pipeline)
-    changed = {s for s in pool if any(key == n or key.startswith(n + ".") for n in param_names(s))}
+    changed = {
+        s
+        for s in pool
+        if any(key == n or key.startswith(n + ".") for n in param_names(s, params_file))
+    }
     hit = changed.union(*(nx.ancestors(graph, s) & pool for s in changed))
     return {s.addressing for s in hit}
 
@@ -44,8 +57,12 @@ def test_a_bare_repro_runs_the_default_pipeline_only(graph):
     outside = sorted(f"{s.relpath}:{s.addressing}" for s in considered(graph, "dvc.yaml"))
     outside = [s for s in outside if not s.startswith("dvc.yaml:")]
     assert not outside, f"the default pipeline pulls in: {outside}"
-    for other in ("suite/dvc.yaml", "quickstart/dvc.yaml"):
+    for other in ("suite/dvc.yaml", "quickstart/dvc.yaml", "transit/dvc.yaml"):
         assert {s.relpath for s in considered(graph, other)} == {other}
+    # robot transfer's StackCube cells read the default pipeline's source demos
+    upstream = {s.addressing for s in considered(graph, "transfer/dvc.yaml")}
+    assert {"source", "parse", "pose_noise"} <= upstream
+    assert not {"generate@D0", "train@D0", "report"} & upstream
 
 
 @pytest.mark.parametrize("section", ["generate", "train"])
@@ -65,10 +82,7 @@ def test_the_counts_of_two_common_ablations(graph):
         for s in ("generate", "coverage", "train", "evaluate", "export", "render")
         for v in ("D0", "D1")
     } | {"report", "observe", "export_observed"}
-    transfer = {s for s in selection if s.startswith(("generate_transfer", "observe_transfer"))}
-    assert selection == main | transfer
-    # 3 PyBullet tasks x 2 variants x 3 arms + StackCube x 2 on the xArm6, + Stack observed
-    assert len(transfer) == 21
+    assert selection == main  # robot transfer is a pipeline of its own
     assert rerun(graph, "train.profile") == {
         "train_source",
         "train@D0",
@@ -79,6 +93,25 @@ def test_the_counts_of_two_common_ablations(graph):
         "evaluate@D1",
         "report",
     }
+
+
+def test_each_pipeline_reruns_only_its_own_files_readers(graph):
+    """`dvc exp run <pipeline> -S <its params file>:<key>=...` on the suite, transit and
+    robot-transfer pipelines: the stages of that pipeline that read the key and their
+    downstream, none of another pipeline; the root params file reaches none of them."""
+    t = "transfer/dvc.yaml"
+    noise = rerun(graph, "generate.action_noise", t, "transfer/params.yaml")
+    assert len([s for s in noise if s.startswith("transfer/dvc.yaml:generate_transfer@")]) == 18
+    assert len([s for s in noise if "generate_transfer_maniskill@" in s]) == 4
+    assert {f"{t}:observe_transfer@stack", f"{t}:report_transfer"} <= noise
+    assert len(noise) == 24
+    scaling = rerun(graph, "suite.scaling.max_attempts", "suite/dvc.yaml", "suite/params.yaml")
+    assert {s.split(":")[-1].split("@")[0] for s in scaling} == {
+        "generate_suite_scaling", "train_suite_scaling", "evaluate_suite_scaling", "report_suite"
+    }  # fmt: skip
+    assert len(scaling) == 1 + 3 + 3 + 1  # the peg_insertion store, 200/1000/5000 demos
+    for pipeline in ("suite/dvc.yaml", "transit/dvc.yaml", t):
+        assert rerun(graph, "generate.action_noise", pipeline, "params.yaml") == set()
 
 
 @pytest.mark.parametrize(

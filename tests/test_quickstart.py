@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -76,3 +77,53 @@ def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(tmp_path):
 
     with h5py.File(q / "data/export/stack_cube_D0/demos.hdf5") as f:
         assert len(f["data"]) == ran["successes"] == 20
+    check_experiments_and_compare(work, env)
+
+
+def ran_stages(output: str) -> set[str]:
+    """The stages a dvc repro / dvc exp run ran, from its output (without their
+    ``<dvc.yaml>:``)."""
+    return set(re.findall(r"Running stage '(?:[^':]+:)?([^']+)'", output))
+
+
+def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
+    """Two real experiments on the quickstart after its run, each `dvc exp run
+    quickstart/dvc.yaml -S quickstart/params.yaml:<key>=<value>`: each edits the quickstart's
+    own params file and re-runs exactly the stages downstream of the key; `mimicgen-pipe
+    compare` then shows both beside the commit, within 120 columns."""
+
+    def run(*args: str) -> str:
+        res = subprocess.run(args, cwd=work, env=env, capture_output=True, text=True)
+        assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+        return res.stdout + res.stderr
+
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t"]
+    run(*git, "add", "-A")
+    run(*git, "commit", "-qm", "base")
+    root_params = (work / "params.yaml").read_text()
+    q = "quickstart/params.yaml"
+    out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "noise02",
+              "-S", f"{q}:generate.action_noise=0.02")  # fmt: skip
+    assert ran_stages(out) == {"generate@D0", "coverage@D0", "export@D0", "report"}
+    assert "action_noise: 0.02" in (work / q).read_text()
+    assert (work / "params.yaml").read_text() == root_params  # not the root's file
+    run("git", "checkout", "--", q)
+    out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "bins4",
+              "-S", f"{q}:coverage.bins=4")  # fmt: skip
+    # from the workspace noise02 left: generate runs back to the committed store
+    assert (
+        {"coverage@D0", "report"}
+        <= ran_stages(out)
+        <= {"generate@D0", "coverage@D0", "export@D0", "report"}
+    )
+    shown = run("mimicgen-pipe", "compare", "--pipeline", "quickstart", "--width", "120")
+    lines = shown.splitlines()
+    head = lines[0].split()
+    assert head[-1] == "workspace" and {"noise02", "bins4"} <= set(head[1:-1])
+    assert head[0] not in ("noise02", "bins4")  # the commit comes first
+    assert max(map(len, lines)) <= 120
+    rows = {line.split()[0]: line.split()[1:] for line in lines[1:] if line.strip()}
+    noise = rows["generate.action_noise"]
+    assert noise[head.index("noise02")] == "0.02" and noise[0] == "0.05"
+    assert rows["coverage.bins"][head.index("bins4")] == "4"
+    assert "dgr_D0" in rows and "coverage_D0" in rows

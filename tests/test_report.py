@@ -16,7 +16,13 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import Metrics, metrics_identity, read_metrics, write_metrics
 from mimicgen_pipe.outputs import claims
 from mimicgen_pipe.params import Params
-from mimicgen_pipe.report import build_report, build_suite_report, build_transit_report, suite
+from mimicgen_pipe.report import (
+    build_report,
+    build_suite_report,
+    build_transfer_report,
+    build_transit_report,
+    suite,
+)
 from mimicgen_pipe.report.ablations import suite_ablation_blocks
 from mimicgen_pipe.report.blocks import Heading, Image, Table, Text, render_html, render_markdown
 from mimicgen_pipe.report.curves import draw_curves, read_curves
@@ -104,8 +110,13 @@ def test_the_papers_transfer_and_coverage_numbers_come_from_its_file(tmp_path):
         Params(), STACK_CUBE, MetricsSet(()), [], load_paper_results(changed), {}, {}, ()
     )
     md = render_markdown(blocks)
-    assert "Paper Table E.1, Square: D0: Panda 73.7, IIWA 12.3, UR5e 64.7; D1: Panda 48.9" in md
     assert "(e.g. Coffee D1 97.1%, Threading D1 71%, Appendix Q)" in md
+    transfer = render_markdown(
+        build_transfer_report(Params(), MetricsSet(()), load_paper_results(changed))
+    )
+    assert "Paper Table E.1, Square: D0: Panda 73.7, IIWA 12.3, UR5e 64.7; D1: Panda 48.9" in (
+        transfer
+    )
 
 
 # --- blocks -------------------------------------------------------------------------------
@@ -176,13 +187,24 @@ def test_params_with_task_stack_read_no_stack_cube_metrics(tmp_path):
     assert rows_of(dgr, "| D0 | missing |", "| D1 | missing |") == rows_of(dgr, "| D")
     ablations = md.split("## Ablations")[1].split("## ")[0]
     assert "cube" not in ablations and "No saved ablation runs" in ablations
-    # stack's own robot-transfer runs are still shown, each arm's DGR and IK failures as its
-    # committed metrics file has them
+    assert "Robot transfer" not in md  # robot transfer's own pipeline reports it
+
+
+def test_the_transfer_report_shows_each_arms_committed_dgr(tmp_path):
+    """`report --transfer` on the committed transfer/metrics: each arm's DGR and IK failures
+    as its metrics file has them, and the same numbers in summary.json."""
+    cli("report", "--params", str(REPO / "transfer/params.yaml"), "--transfer",
+        "--metrics", str(REPO / "transfer/metrics"), "--paper", str(PAPER), "--out", "report",
+        cwd=tmp_path)  # fmt: skip
+    md = (tmp_path / "report/report.md").read_text()
+    summary = json.loads((tmp_path / "report/summary.json").read_text())
     cells = []
     for robot in ("panda", "iiwa", "xarm6"):
-        m = json.loads((REPO / f"metrics/generate_stack_D0_{robot}.json").read_text())
+        m = json.loads((REPO / f"transfer/metrics/generate_stack_D0_{robot}.json").read_text())
         cells.append(f"{m['dgr']:.1f} ({m['ik_failures']}/{m['attempts']} IK)")
+        assert summary[f"dgr_stack_D0_{robot}"] == round(m["dgr"], 1)
     assert f"| stack (D0) | {' | '.join(cells)} |" in md
+    assert "| stack_cube (D1) |" in md and len(summary) == 3 * 2 * 3 + 2 * 2
 
 
 def test_a_generate_only_experiment_marks_what_is_of_the_earlier_run():
@@ -273,13 +295,14 @@ def test_transfer_table_reads_each_arms_metrics():
             gen("stack", "D0", 95.0, backend="pybullet", purpose="dgr", ik_failures=7),
             gen("stack", "D0", 78.5, backend="pybullet", robot="iiwa", purpose="dgr",
                 ik_failures=42),
-            gen("stack_cube", "D0", 96.2, attempts=1039),  # the main run, no IK check
+            gen("stack_cube", "D0", 93.5, purpose="dgr"),  # no IK check on ManiSkill
+            gen("stack_cube", "D0", 96.2, attempts=1039),  # the main run: not a DGR cell
         )
     )  # fmt: skip
     table = transfer_table(ms, "pybullet", ["stack"], ["D0"], ["panda", "iiwa", "xarm6"])
     assert table.rows == (("stack (D0)", "95.0 (7/200 IK)", "78.5 (42/200 IK)", "missing"),)
     main = transfer_table(ms, "maniskill", ["stack_cube"], ["D0"], ["panda", "xarm6"])
-    assert main.rows == (("stack_cube (D0)", "96.2 (0/1039 IK)", "missing"),)
+    assert main.rows == (("stack_cube (D0)", "93.5 (0/200 IK)", "missing"),)
 
 
 def write_folder(folder: Path, *files: Metrics) -> Path:
@@ -312,7 +335,7 @@ def run_report(tmp_path: Path, metrics: Path, plots: Path, out: Path) -> None:
     (tmp_path / "params.yaml").write_text("task: stack_cube\ngenerate: {variants: [D0, D1]}\n")
     args = dict(params=str(tmp_path / "params.yaml"), metrics=str(metrics), ablations=None,
                 plots=str(plots), paper=str(PAPER), out=str(out), suite=False,
-                transit=False)  # fmt: skip
+                transit=False, transfer=False)  # fmt: skip
     with claims():
         report.run(argparse.Namespace(**args))
 

@@ -52,11 +52,6 @@ def build_report(
     of mimicgen_pipe.report.curves made beside the report."""
     task, paper_task, variants = params.task, spec.paper_task, params.generate.variants
     settings = method_settings(params)
-    t = params.transfer
-    transfer = [
-        transfer_table(ms, t.backend, t.tasks, t.variants, t.robots),
-        transfer_table(ms, params.backend, [task], variants, ["panda", *t.maniskill_robots]),
-    ]
     return [
         *method.intro_blocks(task, paper_task, settings),
         *method.dgr_blocks(params, paper_task, settings, ms, paper),
@@ -64,7 +59,6 @@ def build_report(
         *curve_blocks(task, curves),
         *method.coverage_blocks(params, paper_task, ms, paper, heatmaps),
         *ablation_blocks(task, paper_task, settings, ablations, paper),
-        *transfer_blocks(transfer, paper),
         # the report's folder refers to the videos where the render stage keeps them
         *video_blocks(task, variants, media, f"../{MEDIA}"),
     ]
@@ -99,6 +93,18 @@ def build_suite_report(
         if ablations.get(spec.name):
             blocks += suite_ablation_blocks(spec.name, spec.paper_task, ablations[spec.name], paper)
     return blocks
+
+
+def build_transfer_report(params: Params, ms: MetricsSet, paper: PaperResults) -> list[Block]:
+    """The robot-transfer pipeline's report (params transfer.*): ``ms``, its metrics folder."""
+    t, variants = params.transfer, params.generate.variants
+    return transfer_blocks(
+        [
+            transfer_table(ms, t.backend, t.tasks, t.variants, t.robots),
+            transfer_table(ms, params.backend, [params.task], variants, t.maniskill_robots),
+        ],
+        paper,
+    )
 
 
 def build_transit_report(params: Params, ms: MetricsSet) -> list[Block]:

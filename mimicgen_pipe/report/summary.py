@@ -1,5 +1,5 @@
-"""The default pipeline's headline numbers as one flat JSON object (summary.json in the
-report's folder) for ``dvc exp show`` and ``dvc metrics diff``: the numbers the report's
+"""Each pipeline's headline numbers as one flat JSON object (summary.json in its report's
+folder) for ``dvc exp show`` and ``dvc metrics diff``: the numbers the report's
 tables lead with, under short keys, as the report shows them."""
 
 from __future__ import annotations
@@ -8,6 +8,8 @@ from mimicgen_pipe.metrics import Metrics
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.fmt import fmt
 from mimicgen_pipe.report.inputs import MetricsSet, coverage, evaluation, policy_data
+from mimicgen_pipe.report.transfer import transfer_cell
+from mimicgen_pipe.report.transit import WALL_TASK, WALL_VARIANT, transit_cells, transit_run
 
 SUMMARY = "summary.json"
 
@@ -39,4 +41,58 @@ def headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]:
             ev = evaluation(ms, params, task, backend, data, v)
             numbers[f"sr_{data}_on_{v}"] = _shown(ev, "success_rate_max")
         numbers[f"coverage_{v}"] = _shown(coverage(ms, params, v), "support_coverage_joint")
+    return {k: x for k, x in sorted(numbers.items()) if x is not None}
+
+
+def suite_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]:
+    """The task suite's headline numbers, per task t of suite.tasks and reset variant v of
+    suite.variants: ``dgr_<t>_<v>`` (the DGR table's fixed attempts) and
+    ``sr_<t>_<data>_on_<v>`` for the source and generated policies (SR max, mean over
+    seeds). A number whose metrics are not in ``ms`` is left out."""
+    u = params.suite
+    numbers: dict[str, float | None] = {}
+    for task in u.tasks:
+        for v in u.variants:
+            dgr = ms.one(
+                stage="generate", task=task, backend=u.backend, variant=v,
+                robot=params.generate.robot, purpose="dgr",
+            )  # fmt: skip
+            numbers[f"dgr_{task}_{v}"] = _shown(dgr, "dgr")
+            for data in ("source", v):
+                ev = evaluation(ms, params, task, u.backend, data, v)
+                numbers[f"sr_{task}_{data}_on_{v}"] = _shown(ev, "success_rate_max")
+    return {k: x for k, x in sorted(numbers.items()) if x is not None}
+
+
+def transit_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]:
+    """The transit pipeline's headline numbers: ``dgr_<task>_<variant>_<transit>`` per cell
+    and transit (linear, planned), and ``sr_wall_<transit>`` (SR max of the wall variant's
+    policies). A number whose metrics are not in ``ms`` is left out."""
+    numbers: dict[str, float | None] = {}
+    for task, variant in transit_cells(params):
+        for transit in ("linear", "planned"):
+            run = transit_run(ms, task, variant, planned=transit == "planned")
+            numbers[f"dgr_{task}_{variant}_{transit}"] = _shown(run, "dgr")
+    for transit in ("linear", "planned"):
+        ev = ms.find(stage="evaluate", task=WALL_TASK, variant=WALL_VARIANT, data=f"wall_{transit}")
+        numbers[f"sr_wall_{transit}"] = _shown(ev[0] if len(ev) == 1 else None, "success_rate_max")
+    return {k: x for k, x in sorted(numbers.items()) if x is not None}
+
+
+def transfer_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]:
+    """The robot-transfer pipeline's headline numbers: ``dgr_<task>_<variant>_<robot>`` for
+    every cell of transfer.tasks x transfer.variants x transfer.robots and of the default
+    pipeline's task x generate.variants x transfer.maniskill_robots. A number whose metrics
+    are not in ``ms`` is left out."""
+    t = params.transfer
+    cells = [(t.backend, task, v, r) for task in t.tasks for v in t.variants for r in t.robots]
+    cells += [
+        (params.backend, params.task, v, r)
+        for v in params.generate.variants
+        for r in t.maniskill_robots
+    ]
+    numbers = {
+        f"dgr_{task}_{v}_{r}": _shown(transfer_cell(ms, task, backend, v, r), "dgr")
+        for backend, task, v, r in cells
+    }
     return {k: x for k, x in sorted(numbers.items()) if x is not None}

@@ -15,10 +15,9 @@ def transfer_cell(
     ms: MetricsSet, task: str, backend: str, variant: str, robot: str
 ) -> Metrics | None:
     """The generate run of ``task`` on ``variant`` with ``robot``: its fixed attempts (a
-    DGR measure), else the run policies train on (the main run, for the source arm)."""
-    where = {"stage": "generate", "task": task, "backend": backend, "variant": variant}
-    return ms.one(**where, robot=robot, purpose="dgr") or ms.one(
-        **where, robot=robot, purpose="policy_data"
+    DGR measure)."""
+    return ms.one(
+        stage="generate", task=task, backend=backend, variant=variant, robot=robot, purpose="dgr"
     )
 
 
@@ -64,9 +63,9 @@ def transfer_blocks(tables: Sequence[Table], paper: PaperResults) -> list[Block]
             "Source demos recorded with the Panda; each cell generated with the arm of its "
             "column from those demos: DGR % (attempts stopped because a target was outside "
             f"the arm's workspace / attempts). Paper Table E.1, {cited}. First table: "
-            "PyBullet. Second: ManiSkill, whose controller solves its own IK (no IK check "
-            "ahead, so 0 IK failures by construction); its Panda cells are the main run "
-            "(generated until 1000 successes)."
+            "PyBullet. Second: the default pipeline's task on ManiSkill, from its source "
+            "demos, whose controller solves its own IK (no IK check ahead, so 0 IK failures "
+            "by construction)."
         ),
         *tables,
     ]
