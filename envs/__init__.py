@@ -13,14 +13,12 @@ from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
+from envs._cameras import CAMERAS, calibration  # noqa: F401  (CAMERAS: envs.CAMERAS)
 from mimicgen_pipe.contracts import Renderer, SourceEpisode
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.params import check_batch_size
 from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.taskspec import TaskSpec
-
-# the observation cameras a back end may have (their poses: envs/_cameras.py)
-CAMERAS = ("agentview", "eye_in_hand")
 
 
 def backend_package(backend: str) -> types.ModuleType:
@@ -123,8 +121,6 @@ def camera_calibration(cameras: Sequence[str], height: int, width: int) -> dict[
     """Camera -> its calibration for images ``height`` x ``width`` [px] (envs/_cameras.py's
     ``calibration``: K [px], its pose in the world or on the hand link [m]), the same on
     every back end: each renders the cameras where envs/_cameras.py places them."""
-    from envs._cameras import calibration
-
     return {c: calibration(c, height, width) for c in cameras}
 
 

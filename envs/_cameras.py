@@ -1,4 +1,4 @@
-"""Where the observation cameras (envs.CAMERAS, named as robomimic names them) sit; every
+"""Where the observation cameras (CAMERAS, named as robomimic names them) sit; every
 back end's render.py renders them. Free of simulator imports.
 
 - ``agentview``: fixed, in front of the table, facing the arm across the workspace: arm,
@@ -18,7 +18,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from envs import CAMERAS
+# the observation cameras a back end may have, named as robomimic names them
+CAMERAS = ("agentview", "eye_in_hand")
 
 VIDEO = "video"  # the render stage's view, beside the observation cameras
 

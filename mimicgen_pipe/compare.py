@@ -31,9 +31,9 @@ PIPELINES = {
 
 
 @dataclass(frozen=True)
-class Run:
-    """One column: a commit, the workspace or an experiment, with its params (flattened to
-    dotted keys) and headline numbers."""
+class Column:
+    """One column of the comparison: a commit, the workspace or an experiment, with its
+    params (flattened to dotted keys) and headline numbers."""
 
     name: str
     params: Mapping[str, Any]
@@ -67,7 +67,7 @@ def _file_data(data: Mapping[str, Any], kind: str, path: str) -> dict[str, Any]:
     return entry.get("data") or {} if isinstance(entry, dict) else {}
 
 
-def runs_of(exp_show: Any, pipeline: Pipeline) -> list[Run]:
+def runs_of(exp_show: Any, pipeline: Pipeline) -> list[Column]:
     """The runs of ``dvc exp show --json`` output, as one pipeline sees them: its params file
     and its summary. Entries DVC could not read (``error``) and those without the pipeline's
     params are left out; the workspace is named "workspace" and comes last, a commit is
@@ -87,12 +87,12 @@ def runs_of(exp_show: Any, pipeline: Pipeline) -> list[Run]:
         }
         rev = str(e.get("rev", ""))
         name = e.get("name") or (rev if rev == "workspace" else rev[:7])
-        runs.append(Run(str(name), params, numbers))
+        runs.append(Column(str(name), params, numbers))
     # the commits (each followed by its experiments) first, so that changes are from a commit
     return sorted(runs, key=lambda r: r.name == "workspace")
 
 
-def select(runs: Sequence[Run], names: Sequence[str]) -> list[Run]:
+def select(runs: Sequence[Column], names: Sequence[str]) -> list[Column]:
     """The runs named (in the order given), or all when none are; InputError for a name no
     run has, listing those there are."""
     if not names:
@@ -126,7 +126,7 @@ def _number(value: float | None, first: float | None) -> str:
     return f"{value:g} ({value - first:+.1f})"
 
 
-def table(runs: Sequence[Run], all_params: bool = False) -> list[list[str]]:
+def table(runs: Sequence[Column], all_params: bool = False) -> list[list[str]]:
     """Rows of the comparison, a header first: the params that differ between ``runs`` (or
     every one, ``all_params``), then every headline number any run has, each run's value
     followed by its change from the first run's."""

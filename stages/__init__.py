@@ -105,9 +105,7 @@ def check_data(params: Params, data: str, named: bool) -> None:
     (``named``), any name of letters, digits, _ and - (it goes into output file names)."""
     if named:
         if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]*", data):
-            raise InputError(
-                f"--data {data!r}: expected letters, digits, _ and - only (it names the outputs)"
-            )
+            raise InputError(f"--data {data!r}: expected letters, digits, _ and - only")
         return
     variants = envs.task_spec(params.backend, params.task).variants
     if data != "source" and data not in variants:

@@ -38,6 +38,7 @@ from mimicgen_pipe.external import (
 from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.params import Params
+from mimicgen_pipe.taskspec import TaskSpec
 from stages import add_selection_arguments, check_data, episode_count, stage_params
 
 
@@ -113,6 +114,24 @@ def print_plan(label: str, probed: Probed, episodes: int, horizon: int, workers:
         print(line)
 
 
+def eval_job(
+    params: Params, spec: TaskSpec, robot: str, policy: PolicySpec, variant: str, probed: Probed
+) -> EvalJob:
+    """The rollouts' job: ``policy`` (served in its own interpreter) acting with ``robot`` in
+    ``variant``, given the cameras it reads (``probed``) rendered in the workers."""
+    return EvalJob(
+        make_env=functools.partial(
+            envs.make_env, params.backend, params.task, robot, params.maniskill.lean_step
+        ),
+        load_policy=functools.partial(load_external_policy, policy),
+        variant=variant,
+        horizon=spec.horizon,
+        objects=spec.objects,
+        arms=spec.arms,
+        make_cameras=camera_renderer(params, robot, probed.cameras, probed.size),
+    )
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
@@ -137,17 +156,7 @@ def run(args: argparse.Namespace) -> None:
     known = envs.backend_package(params.backend).cameras(robot)
     env_kwargs = {"backend": params.backend, "task": params.task, "robot": robot}
     probed = probe(policy, spec.observation_dims, env_kwargs, known, spec.action_dim)
-    job = EvalJob(
-        make_env=functools.partial(
-            envs.make_env, params.backend, params.task, robot, params.maniskill.lean_step
-        ),
-        load_policy=functools.partial(load_external_policy, policy),
-        variant=args.variant,
-        horizon=spec.horizon,
-        objects=spec.objects,
-        arms=spec.arms,
-        make_cameras=camera_renderer(params, robot, probed.cameras, probed.size),
-    )
+    job = eval_job(params, spec, robot, policy, args.variant, probed)
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(episodes)]
     label = f"evaluate {name}"
     epoch, unit = checkpoint_epoch(fmt, path, label)

@@ -120,7 +120,7 @@ def test_interrupt_stops_generate_with_one_line(work, sig):
         os.killpg(proc.pid, sig)
     else:
         os.kill(proc.pid, sig)
-    _, err = proc.communicate(timeout=30)
+    _, err = proc.communicate(timeout=60)
     exit_seconds = time.monotonic() - t0
     workers = [p for p, c in kids.items() if "spawn_main" in c]
     assert proc.returncode == 128 + sig, err[-3000:]
@@ -128,7 +128,7 @@ def test_interrupt_stops_generate_with_one_line(work, sig):
     # tells a stop from a run that went on (the 400 attempts take minutes); how fast a loaded
     # machine tears a pool down is not this test's business.
     assert not [p for p in workers if alive(p)], f"workers outlived the stage ({sig.name})"
-    assert exit_seconds < 15.0, f"the stage took {exit_seconds:.1f} s to stop"
+    assert exit_seconds < 30.0, f"the stage took {exit_seconds:.1f} s to stop"
     assert seconds_until_gone(kids) < 10.0  # the resource tracker follows its parent
     assert "Traceback" not in err and "Error" not in err, err[-3000:]
     lines = own_lines(err)

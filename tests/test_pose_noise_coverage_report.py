@@ -252,6 +252,7 @@ def test_coverage_and_report_stages_on_the_pipeline(pipeline, tmp_path):
             out=str(out),
             suite=False,
             transit=False,
+            transfer=False,
         )
     )
     md = (out / "report.md").read_text()

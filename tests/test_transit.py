@@ -235,4 +235,4 @@ def test_a_policy_trained_on_a_named_store_takes_a_plain_name(tmp_path):
               check=False)  # fmt: skip
     assert res.returncode == 2 and "missing.zarr" in res.stderr.strip().splitlines()[-1]
     res = cli("train", "--data", "wall_planned", cwd=tmp_path, check=False)  # no store: a variant
-    assert "'wall_planned' is not" in res.stderr or "variant 'wall_planned'" in res.stderr
+    assert "--data 'wall_planned': expected \"source\" or a reset variant of" in res.stderr
