@@ -461,15 +461,19 @@ def test_robomimic_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_
                for r in rows)  # fmt: skip
     assert 100.0 * np.mean([r["success"] == "1" for r in rows]) == m["success_rate_max"]
 
-    spec = PolicySpec("robomimic", str(checkpoint), str(external.DEFAULT_PYTHON), (), "")
+    import envs
+
+    obs_keys = tuple(envs.task_spec("maniskill", "stack_cube").default_obs_keys)
+    spec = PolicySpec("robomimic", str(checkpoint), str(external.DEFAULT_PYTHON), obs_keys, "")
     dims = observation_dims(("cubeA", "cubeB"))
     obs = {k: np.full(d, 0.1, np.float32) for k, d in dims.items()}
+    inputs = external.format_module("robomimic").observation(obs, obs_keys)  # as the env gives
     with external.start_policy(spec) as policy:
         assert set(policy.keys) == set(config["observation"]["modalities"]["obs"]["low_dim"])
         runs = []
         for _ in range(2):
             policy.reset(7)
-            runs.append(np.stack([policy.act(obs) for _ in range(12)]))
+            runs.append(np.stack([policy.act(inputs) for _ in range(12)]))
     np.testing.assert_array_equal(runs[0], runs[1])
 
 
