@@ -45,37 +45,32 @@ def repository_root(path: str | os.PathLike) -> Path | None:
     return None
 
 
-def _stage_dirs(dvc_file: Path) -> dict[str, Path]:
-    """Each stage's working directory (absolute), keyed by its name in dvc.yaml."""
+def _stages(path: Path) -> dict[str, dict]:
+    """The ``stages`` mapping of a dvc.yaml or dvc.lock, name -> body (bodies that are not
+    mappings left out); empty when the file is absent or not such YAML."""
     try:
-        stages = (yaml.safe_load(dvc_file.read_text(encoding="utf-8")) or {}).get("stages")
+        stages = (yaml.safe_load(path.read_text(encoding="utf-8")) or {}).get("stages")
     except (OSError, yaml.YAMLError, AttributeError):
         return {}
     if not isinstance(stages, dict):
         return {}
-    return {
-        name: (dvc_file.parent / str(body.get("wdir", "."))).resolve()
-        for name, body in stages.items()
-        if isinstance(body, dict)
-    }
+    return {str(name): body for name, body in stages.items() if isinstance(body, dict)}
 
 
 def _lock_outputs(root: Path, dvc_file: Path) -> dict[Path, Owner]:
-    lock = dvc_file.with_name("dvc.lock")
-    try:
-        stages = (yaml.safe_load(lock.read_text(encoding="utf-8")) or {}).get("stages")
-    except (OSError, yaml.YAMLError, AttributeError):
-        return {}
-    if not isinstance(stages, dict):
-        return {}
-    dirs = _stage_dirs(dvc_file)
+    """Every output the lock beside ``dvc_file`` records, as an absolute path, with its
+    stage (its working directory from ``dvc_file``)."""
+    dirs = {
+        name: (dvc_file.parent / str(body.get("wdir", "."))).resolve()
+        for name, body in _stages(dvc_file).items()
+    }
     name = dvc_file.relative_to(root).as_posix()
     found: dict[Path, Owner] = {}
-    for stage, body in stages.items():
-        wdir = dirs.get(str(stage).split("@")[0], dvc_file.parent.resolve())
-        for out in (body or {}).get("outs", ()) if isinstance(body, dict) else ():
+    for stage, body in _stages(dvc_file.with_name("dvc.lock")).items():
+        wdir = dirs.get(stage.split("@")[0], dvc_file.parent.resolve())
+        for out in body.get("outs") or ():
             if isinstance(out, dict) and "path" in out:
-                found[(wdir / str(out["path"])).resolve()] = Owner(name, str(stage))
+                found[(wdir / str(out["path"])).resolve()] = Owner(name, stage)
     return found
 
 

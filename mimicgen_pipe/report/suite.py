@@ -35,7 +35,7 @@ def intro_blocks(specs: Sequence[TaskSpec]) -> list[Block]:
     ]
 
 
-def _dgr_run(ms: MetricsSet, params: Params, task: str, variant: str) -> Metrics | None:
+def dgr_run(ms: MetricsSet, params: Params, task: str, variant: str) -> Metrics | None:
     """The suite's fixed attempts of ``task`` on ``variant`` (a DGR measure)."""
     return ms.one(
         stage="generate",
@@ -66,7 +66,7 @@ def suite_dgr_blocks(
     rows = []
     for spec in specs:
         for v in params.suite.variants:
-            g = _dgr_run(ms, params, spec.name, v)
+            g = dgr_run(ms, params, spec.name, v)
             ref = paper.find(table="O.1", task=spec.paper_task, variant=v, metric="dgr")
             if g is None:
                 ours, failures, per_attempt = MISSING, MISSING, MISSING
@@ -118,7 +118,7 @@ def object_transfer_blocks(
     for spec in specs:
         if spec.name not in params.suite.object_transfer:
             continue
-        d0, o1 = (_dgr_run(ms, params, spec.name, v) for v in ("D0", "O1"))
+        d0, o1 = (dgr_run(ms, params, spec.name, v) for v in ("D0", "O1"))
         rows.append(
             (
                 spec.name,
@@ -236,7 +236,7 @@ def long_task_blocks(
     variants = ("D0", "D1", "D2")
     rows = []
     for spec in longs:
-        dgr = [_dgr_run(ms, params, spec.name, v) for v in variants]
+        dgr = [dgr_run(ms, params, spec.name, v) for v in variants]
         sr = [
             evaluation(ms, params, spec.name, params.suite.backend, d, "D0")
             for d in ("source", "D0")
@@ -295,7 +295,7 @@ def two_arm_blocks(params: Params, specs: Sequence[TaskSpec], ms: MetricsSet) ->
         )
         dgr = []
         for v in params.suite.variants:
-            g = _dgr_run(ms, params, spec.name, v)
+            g = dgr_run(ms, params, spec.name, v)
             if g is None:
                 dgr.append(MISSING)
                 continue

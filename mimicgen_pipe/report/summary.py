@@ -8,8 +8,9 @@ from mimicgen_pipe.metrics import Metrics
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.fmt import fmt
 from mimicgen_pipe.report.inputs import MetricsSet, coverage, evaluation, policy_data
+from mimicgen_pipe.report.suite import dgr_run
 from mimicgen_pipe.report.transfer import transfer_cell
-from mimicgen_pipe.report.transit import WALL_TASK, WALL_VARIANT, transit_cells, transit_run
+from mimicgen_pipe.report.transit import transit_cells, transit_run, wall_evaluation
 
 SUMMARY = "summary.json"
 
@@ -53,11 +54,7 @@ def suite_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]:
     numbers: dict[str, float | None] = {}
     for task in u.tasks:
         for v in u.variants:
-            dgr = ms.one(
-                stage="generate", task=task, backend=u.backend, variant=v,
-                robot=params.generate.robot, purpose="dgr",
-            )  # fmt: skip
-            numbers[f"dgr_{task}_{v}"] = _shown(dgr, "dgr")
+            numbers[f"dgr_{task}_{v}"] = _shown(dgr_run(ms, params, task, v), "dgr")
             for data in ("source", v):
                 ev = evaluation(ms, params, task, u.backend, data, v)
                 numbers[f"sr_{task}_{data}_on_{v}"] = _shown(ev, "success_rate_max")
@@ -74,8 +71,7 @@ def transit_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]
             run = transit_run(ms, task, variant, planned=transit == "planned")
             numbers[f"dgr_{task}_{variant}_{transit}"] = _shown(run, "dgr")
     for transit in ("linear", "planned"):
-        ev = ms.find(stage="evaluate", task=WALL_TASK, variant=WALL_VARIANT, data=f"wall_{transit}")
-        numbers[f"sr_wall_{transit}"] = _shown(ev[0] if len(ev) == 1 else None, "success_rate_max")
+        numbers[f"sr_wall_{transit}"] = _shown(wall_evaluation(ms, transit), "success_rate_max")
     return {k: x for k, x in sorted(numbers.items()) if x is not None}
 
 

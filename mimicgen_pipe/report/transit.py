@@ -34,6 +34,13 @@ def transit_run(
     return runs[0] if len(runs) == 1 else None
 
 
+def wall_evaluation(ms: MetricsSet, transit: str) -> Metrics | None:
+    """The evaluation of the wall variant's policy trained on ``transit``'s demos ("linear"
+    or "planned"), None unless exactly one."""
+    ev = ms.find(stage="evaluate", task=WALL_TASK, variant=WALL_VARIANT, data=f"wall_{transit}")
+    return ev[0] if len(ev) == 1 else None
+
+
 def _cell(m: Metrics | None, key: str, digits: int = 1) -> str:
     return MISSING if m is None else fmt(m.values.get(key), digits)
 
@@ -105,9 +112,9 @@ def policy_blocks(params: Params, ms: MetricsSet) -> list[Block]:
     rows = []
     for transit in ("linear", "planned"):
         run = transit_run(ms, WALL_TASK, WALL_VARIANT, transit == "planned", "policy_data")
-        ev = ms.find(stage="evaluate", task=WALL_TASK, variant=WALL_VARIANT, data=f"wall_{transit}")
+        ev = wall_evaluation(ms, transit)
         g = None if run is None else run.values
-        e = ev[0].values if len(ev) == 1 else None
+        e = None if ev is None else ev.values
         rows.append(
             (
                 transit,
