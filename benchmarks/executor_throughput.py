@@ -1,27 +1,37 @@
-"""Executor throughput: the same StackCube attempts on local 1 worker, local 2 workers and
-Ray 2 workers, one after the other in one run, as attempts per second and ratios to the
-1-worker run; and what the executor path costs over raw stepping of the same actions.
+"""Throughput as workers grow: the same StackCube attempts on the local pool and on Ray at 1,
+2, 4, ... workers (up to this machine's CPUs), and on a Ray of two raylets on this machine (a
+head and a second node joined to it, one CPU each, token authentication on, as a cluster
+runs); demos per hour and the efficiency per worker, one after the other in one run;
+written to metrics/benchmarks/executor_throughput.json.
 
-    python benchmarks/executor_throughput.py [--parsed data/parsed/stack_cube.zarr]
-        [--variant D0] [--attempts 96]
+    python benchmarks/executor_throughput.py [--parsed data/pose_noise/stack_cube.zarr]
+        [--variant D0] [--attempts 160] [--max-workers N]
 
-Each executor runs the real path (blocks on rebuilt scenes, every finished block saved to a
-work directory). Worker start-up (spawning, building the simulator) is inside each timing;
-starting Ray itself is not (a cluster is normally up already) and is printed apart. All
-executors must produce the same attempts, which is checked.
+Each run is the stage's real path: blocks on rebuilt scenes, every finished block saved to a
+work directory, results taken in block order. Worker start-up (spawning, building the
+simulator) is inside each timing, as a stage pays it; starting Ray is not (a cluster is
+normally up already) and is printed apart. Every run must make the same attempts as the
+local 1-worker run, bit for bit (every step array of every attempt), which is checked and
+recorded.
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
+import json
+import os
+import secrets
 import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+from _machine import figures_path, machine
+
 import envs
 from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.generation import GenerationConfig
+from mimicgen_pipe.generation import Attempt, GenerationConfig
 from mimicgen_pipe.resume import WorkDir
 from mimicgen_pipe.runner import (
     AttemptBlockCodec,
@@ -32,23 +42,77 @@ from mimicgen_pipe.runner import (
 )
 from mimicgen_pipe.store import read_store
 
+OUT = figures_path(__file__)
+
+
+def same(a: Attempt, b: Attempt) -> bool:
+    """The same attempt: outcome and every step array, names, dtypes and bytes."""
+    return (
+        a.seed == b.seed
+        and a.success == b.success
+        and list(a.steps) == list(b.steps)
+        and all(
+            a.steps[k].dtype == b.steps[k].dtype and a.steps[k].tobytes() == b.steps[k].tobytes()
+            for k in a.steps
+        )
+    )
+
 
 def timed(job: AttemptJob, seeds: list[int], executor: Executor, tmp: Path) -> tuple[float, list]:
-    work = WorkDir.open(
-        tmp / f"{executor.kind}{executor.workers}.zarr", "benchmark", AttemptBlockCodec(seeds)
-    )
+    """Seconds for the whole run on ``executor`` and its attempts in order."""
+    work = WorkDir.open(tmp / f"{executor.kind}{executor.workers}.zarr", "benchmark",
+                        AttemptBlockCodec(seeds))  # fmt: skip
     t0 = time.perf_counter()
-    results = list(run_attempts(job, seeds, executor, work))
+    results = [a for _, a, _ in run_attempts(job, seeds, executor, work)]
     seconds = time.perf_counter() - t0
     work.remove()
     return seconds, results
 
 
+def worker_counts(most: int) -> list[int]:
+    """1, 2, 4, ... up to ``most``, and ``most`` itself."""
+    counts, n = [], 1
+    while n < most:
+        counts.append(n)
+        n *= 2
+    return counts + [most]
+
+
+def two_raylets(job: AttemptJob, seeds: list[int], tmp: Path) -> tuple[float, list, float]:
+    """The attempts on a Ray of two raylets here (a head and a node joined to it, one CPU
+    each) with token authentication on, reached by address as a cluster is; seconds, the
+    attempts, and the seconds the two nodes took to start."""
+    import ray
+    from ray._raylet import Config
+    from ray.cluster_utils import Cluster
+
+    os.environ["RAY_AUTH_MODE"] = "token"
+    os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(16)
+    os.environ.pop("RAY_ADDRESS", None)
+    Config.initialize("")  # Ray reads RAY_AUTH_MODE once per process: again now
+    t0 = time.perf_counter()
+    cluster = Cluster(
+        initialize_head=True,
+        head_node_args={"num_cpus": 1, "object_store_memory": 100 * 2**20,
+                        "include_dashboard": False},
+    )  # fmt: skip
+    try:
+        cluster.add_node(num_cpus=1, object_store_memory=100 * 2**20)
+        cluster.wait_for_nodes()
+        started = time.perf_counter() - t0
+        seconds, attempts = timed(job, seeds, Executor("ray", 2, cluster.address), tmp)
+        ray.shutdown()
+    finally:
+        cluster.shutdown()
+    return seconds, attempts, started
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--parsed", default="data/parsed/stack_cube.zarr")
+    p.add_argument("--parsed", default="data/pose_noise/stack_cube.zarr")
     p.add_argument("--variant", default="D0")
-    p.add_argument("--attempts", type=int, default=96)
+    p.add_argument("--attempts", type=int, default=160)
+    p.add_argument("--max-workers", type=int, default=os.cpu_count() or 1)
     args = p.parse_args()
     spec = envs.task_spec("maniskill", "stack_cube")
     job = AttemptJob(
@@ -63,62 +127,56 @@ def main() -> None:
 
     from mimicgen_pipe.executors.ray import _connect
 
-    t0 = time.perf_counter()
-    _connect(2, None)  # the local Ray the executor would start, started ahead of the timing
-    ray_start = time.perf_counter() - t0
+    runs: list[dict] = []
+    reference: list[Attempt] | None = None
 
-    runs: dict[str, float] = {}
-    reference = None
+    def record(kind: str, workers: int, seconds: float, attempts: list[Attempt], **extra) -> None:
+        nonlocal reference
+        reference = reference or attempts
+        kept = sum(a.success for a in attempts)
+        runs.append({
+            "executor": kind, "workers": workers, "seconds": round(seconds, 2),
+            "attempts_per_second": round(len(attempts) / seconds, 3),
+            "demos_per_hour": round(3600 * kept / seconds),
+            "same_attempts_as_local_1": all(
+                same(a, b) for a, b in zip(attempts, reference, strict=True)),
+            **extra,
+        })  # fmt: skip
+        r = runs[-1]
+        print(f"{kind:14s} {workers} worker(s) {seconds:7.1f} s  {r['attempts_per_second']:5.2f} "
+              f"attempts/s  {r['demos_per_hour']:6d} demos/h  same attempts: "
+              f"{r['same_attempts_as_local_1']}", flush=True)  # fmt: skip
+
     with tempfile.TemporaryDirectory() as tmp:
-        for name, executor in (
-            ("local, 1 worker", Executor("local", 1)),
-            ("local, 2 workers", Executor("local", 2)),
-            ("ray, 2 workers", Executor("ray", 2)),
-        ):
-            seconds, results = timed(job, seeds, executor, Path(tmp))
-            outcome = [(s, a.success, len(a.steps.get("actions", ()))) for s, a, _ in results]
-            assert reference is None or outcome == reference, f"{name}: different attempts"
-            reference = outcome
-            runs[name] = seconds
-            if name.startswith("local, 1"):
-                worker_seconds = sum(t for _, _, t in results)
-                attempts = [a for _, a, _ in results]
-    ray.shutdown()
-
-    # raw stepping of the same actions from the same scenes, in this process
-    env = job.make_env()
-    step, t_step, n_steps = env.unwrapped.step, 0.0, 0
-    for seed, attempt in zip(seeds, attempts, strict=True):
-        env.reset(seed=seed, variant=args.variant)
-        t0 = time.perf_counter()
-        for action in attempt.steps.get("actions", ()):
-            step(action)
-        t_step += time.perf_counter() - t0
-        n_steps += len(attempt.steps.get("actions", ()))
-    env.close()
-
-    dgr = 100 * sum(r[1] for r in reference) / len(reference)
-    print(f"StackCube {args.variant}: {args.attempts} attempts, {n_steps} steps, DGR {dgr:.1f}%")
-    base = runs["local, 1 worker"]
-    for name, seconds in runs.items():
-        print(
-            f"{name:17s} {seconds:7.1f} s  {args.attempts / seconds:6.2f} attempts/s  "
-            f"x{base / seconds:.2f} of 1 worker"
-        )
-    print(
-        f"ray 2 / local 2: {runs['local, 2 workers'] / runs['ray, 2 workers']:.2f} "
-        f"(throughput); starting the local Ray took {ray_start:.1f} s (not counted)"
-    )
-    print(
-        f"executor path, 1 worker: {base / args.attempts:.3f} s/attempt; attempts alone "
-        f"{worker_seconds / args.attempts:.3f} s/attempt; raw stepping "
-        f"{t_step / args.attempts:.3f} s/attempt ({1e3 * t_step / n_steps:.2f} ms/step)"
-    )
-    print(
-        f"overhead ratio over raw stepping: attempts on the executor path "
-        f"{worker_seconds / t_step:.3f} (generator, resets and scene rebuilds), wall of the "
-        f"1-worker run {base / t_step:.3f} (also building the simulator and saving blocks)"
-    )
+        for n in worker_counts(args.max_workers):
+            record("local", n, *timed(job, seeds, Executor("local", n), Path(tmp)))
+            t0 = time.perf_counter()
+            _connect(n, None)  # the local Ray the executor would start, started ahead
+            ray_start = time.perf_counter() - t0
+            record("ray", n, *timed(job, seeds, Executor("ray", n), Path(tmp)),
+                   ray_start_seconds=round(ray_start, 1))  # fmt: skip
+            ray.shutdown()
+        seconds, attempts, started = two_raylets(job, seeds, Path(tmp))
+        record("ray, 2 raylets", 2, seconds, attempts, ray_start_seconds=round(started, 1))
+    base = {r["executor"]: r["attempts_per_second"] for r in runs if r["workers"] == 1}
+    for r in runs:
+        one = base.get(r["executor"].split(",")[0], base["local"])
+        r["efficiency_per_worker"] = round(r["attempts_per_second"] / (r["workers"] * one), 3)
+    dgr = 100 * np.mean([a.success for a in reference or []])
+    print(f"\nStackCube {args.variant}: {args.attempts} attempts, DGR {dgr:.1f} %")
+    print("efficiency per worker (throughput / (workers x the same executor's 1-worker)):")
+    for r in runs:
+        print(f"  {r['executor']:14s} {r['workers']}: {r['efficiency_per_worker']:.3f}")
+    figures = {
+        "task": "stack_cube",
+        "variant": args.variant,
+        "attempts": args.attempts,
+        "dgr": round(float(dgr), 2),
+        **machine(),
+        "runs": runs,
+    }
+    OUT.write_text(json.dumps(figures, indent=1) + "\n")
+    print(f"-> {OUT}")
 
 
 if __name__ == "__main__":

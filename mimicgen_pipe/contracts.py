@@ -16,8 +16,40 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from mimicgen_pipe import poses
 from mimicgen_pipe.taskspec import TaskSpec
 from mimicgen_pipe.transit import PlannerSettings
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Where an env's flat get_state() vector holds what object_poses() and gripper_state()
+    read, bit for bit: ``objects``, object name -> the index of its world position (3, [m])
+    followed by its quaternion (4, wxyz); ``frame_fix``, object name -> the (4, 4) transform
+    object_poses() right-multiplies onto that pose (an object whose frame sits elsewhere than
+    the simulator's); ``fingers``, the indices of the finger joint positions [m]."""
+
+    objects: dict[str, int]
+    frame_fix: dict[str, np.ndarray]
+    fingers: tuple[int, ...]
+
+    def object_poses(self, states: np.ndarray) -> dict[str, np.ndarray]:
+        """Object name -> (T, 4, 4) world poses in ``states`` (T, S), as object_poses() would
+        have read them at each state."""
+        states = np.asarray(states)
+        out = {}
+        for name, i in self.objects.items():
+            p = states[:, i : i + 3].astype(np.float64)
+            q = states[:, i + 3 : i + 7].astype(np.float64)
+            out[name] = poses.pose_from_pq_stepwise(p, q)
+            if name in self.frame_fix:  # one product a step, as the env takes it
+                fix = self.frame_fix[name]
+                out[name] = np.stack([m @ fix for m in out[name]])
+        return out
+
+    def gripper_states(self, states: np.ndarray) -> np.ndarray:
+        """(T, n) finger joint positions [m] in ``states`` (T, S), float64."""
+        return np.asarray(states)[:, list(self.fingers)].astype(np.float64)
 
 
 class Env(Protocol):
@@ -57,6 +89,12 @@ class Env(Protocol):
         """The whole simulator state as a flat float32 array (for replay and rendering)."""
 
     def set_state(self, state: np.ndarray) -> None: ...
+
+    def state_layout(self) -> StateLayout | None:
+        """Where get_state() holds the objects' poses and the fingers' positions, so that a
+        recorder reads them from an episode's stored states after it instead of at every
+        step; None where the state does not hold them as object_poses() and gripper_state()
+        return them."""
 
     def target_pose_to_action(self, target: np.ndarray, gripper: float) -> np.ndarray:
         """The (7,) action that moves the TCP from where it is to ``target`` (world)."""

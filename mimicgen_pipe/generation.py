@@ -10,7 +10,7 @@ from typing import Literal, cast
 import numpy as np
 
 from mimicgen_pipe import poses
-from mimicgen_pipe.contracts import ArmEnv, Env, MultiArmEnv, PlanningEnv
+from mimicgen_pipe.contracts import ArmEnv, Env, MultiArmEnv, PlanningEnv, StateLayout
 from mimicgen_pipe.controller import clip_actions
 from mimicgen_pipe.observations import arms_observation_values, observation_values
 from mimicgen_pipe.pose_noise import PoseNoise, generation_rng, perturb_pose
@@ -331,7 +331,7 @@ def attempt_actions(
         state = start_subtasks(setting, state, obj_now, rng, pose_rng)
         if state.stop is not None or not state.active:
             break  # stopped, or every arm has done its subtasks (a checked spec cannot stall)
-        state, obj_now = yield from execute(setting, state, obj_now, recorder)
+        state, obj_now = yield from execute(setting, state, recorder)
     success, failed = attempt_outcome(setting, state)
     return Attempt(
         seed,
@@ -587,26 +587,20 @@ def noise_scales(
 ExecutedSteps = Generator[np.ndarray, None, tuple[AttemptState, dict[str, np.ndarray]]]
 
 
-def execute(
-    setting: AttemptSetting,
-    state: AttemptState,
-    obj_now: dict[str, np.ndarray],
-    recorder: StepRecorder,
-) -> ExecutedSteps:
+def execute(setting: AttemptSetting, state: AttemptState, recorder: StepRecorder) -> ExecutedSteps:
     """Execute the running plans step by step until one of them ends: record each step
-    before its action (with the object poses ``obj_now`` it starts from, world frame), yield
-    the action and, once it is stepped, read the object poses again. Returns the state and
-    the object poses after the last step."""
+    before its action, yield the action and, once it is stepped, move the plans on. Returns
+    the state and the object poses after the last step (world frame), which the next
+    subtasks start from; the steps' own object poses the recorder has."""
     env, active = setting.env, state.active
     while True:
         action, eefs, targets, state = next_action(setting, state)
-        signals = recorder.record(env, eefs, obj_now, action, targets, active)
+        signals = recorder.record(env, eefs, action, targets, active)
         state = signals_reached(setting, state, active, signals)
         yield action
-        obj_now = env.object_poses()
         state, ended = step_taken(setting, state)
         if ended:
-            return state, obj_now
+            return state, env.object_poses()
 
 
 def next_action(
@@ -760,19 +754,26 @@ class StepRecorder:
     With several arms, each arm's eef_pose, target_pose and gripper as ``<key>/<arm>``
     (arm_key) and ``subtask/<arm>``, the subtask it runs (-1: holding). One list per array,
     its names fixed at the first step.
+
+    Per step it reads only what the stores need and no stored state holds: the state itself,
+    the end-effector poses (forward kinematics) and the subtask signals (they read contacts,
+    which a state does not carry). The object poses, the fingers' positions and from them the
+    observation are derived after the episode, all steps at once, from the stored states,
+    where the env's state_layout() says where they lie (the same floats, bit for bit); an env
+    without one has its poses and fingers read at every step.
     """
 
     def __init__(self, objects: tuple[str, ...], arms: tuple[str, ...] = (ARM,)) -> None:
         self.objects, self.arms = objects, arms
         self.several = len(arms) > 1
         self.columns: dict[str, list] = {}
+        self._layout: StateLayout | None = None  # the env's, found at the first step
         self._arm_envs: tuple[Env, dict[str, ArmEnv]] | None = None  # found once per env
 
     def record(
         self,
         env: Env,
         eefs: Mapping[str, np.ndarray],
-        object_poses: Mapping[str, np.ndarray],
         action: np.ndarray,
         targets: Mapping[str, np.ndarray],
         active: Mapping[str, int] | None = None,
@@ -781,49 +782,64 @@ class StepRecorder:
         several arms each one's subtask (``active``: arm -> subtask index, an arm without
         one holding); returns the subtask signals it recorded."""
         sig = env.subtask_signals()
-        several = self.several
-        if several:
-            if self._arm_envs is None or self._arm_envs[0] is not env:
-                self._arm_envs = (env, arm_envs(env, self.arms))
-            arms = self._arm_envs[1]
-            grippers = {arm: arms[arm].gripper_state() for arm in self.arms}
-            obs = arms_observation_values(eefs, grippers, object_poses, self.objects)
-            own = [eefs[a] for a in self.arms] + [targets[a] for a in self.arms]
-            own += [(active or {}).get(a, -1) for a in self.arms]
-        else:
-            eef = eefs[self.arms[0]]
-            obs = observation_values(eef, env.gripper_state(), object_poses, self.objects)
-            own = [eef, targets[self.arms[0]]]
-        values = (
-            action,
-            *own,
-            env.get_state(),
-            *(object_poses[o] for o in self.objects),
-            *sig.values(),
-            *obs.values(),
-        )
         if not self.columns:
-            names = ["actions"]
-            names += [arm_key("eef_pose", a) for a in self.arms]
-            names += [arm_key("target_pose", a) for a in self.arms]
-            names += [f"subtask/{a}" for a in self.arms] if several else []
-            names += ["env_state"]
-            names += [f"object_poses/{o}" for o in self.objects]
-            names += [f"subtask_signals/{n}" for n in sig]
-            names += [f"obs/{k}" for k in obs]
-            self.columns = {name: [] for name in names}
+            self._layout = None if self.several else env.state_layout()
+            self.columns = {name: [] for name in self._names(sig)}
+        own = [eefs[a] for a in self.arms] + [targets[a] for a in self.arms]
+        if self.several:
+            own += [(active or {}).get(a, -1) for a in self.arms]
+        read = []
+        if self._layout is None:  # what no stored state holds as the env reads it
+            poses_now = env.object_poses()
+            read = [poses_now[o] for o in self.objects] + self._grippers(env)
+        values = (action, *own, env.get_state(), *read, *sig.values())
         for column, value in zip(self.columns.values(), values, strict=True):
             column.append(value)
         return sig
 
+    def _names(self, sig: Mapping[str, bool]) -> list[str]:
+        names = ["actions"]
+        names += [arm_key("eef_pose", a) for a in self.arms]
+        names += [arm_key("target_pose", a) for a in self.arms]
+        names += [f"subtask/{a}" for a in self.arms] if self.several else []
+        names += ["env_state"]
+        if self._layout is None:
+            names += [f"object_poses/{o}" for o in self.objects]
+            names += [f"fingers/{a}" for a in self.arms]
+        return names + [f"subtask_signals/{n}" for n in sig]
+
+    def _grippers(self, env: Env) -> list[np.ndarray]:
+        if not self.several:
+            return [env.gripper_state()]
+        if self._arm_envs is None or self._arm_envs[0] is not env:
+            self._arm_envs = (env, arm_envs(env, self.arms))
+        return [self._arm_envs[1][a].gripper_state() for a in self.arms]
+
     def arrays(self) -> dict[str, np.ndarray]:
-        out = {
-            k: np.asarray(v, np.float32) if k.startswith("obs/") else np.asarray(v)
-            for k, v in self.columns.items()
-        }
-        if "actions" in out:
-            for n, arm in enumerate(self.arms):  # each arm's 7 action entries end with its grip
-                out[arm_key("gripper", arm)] = out["actions"][:, 7 * n + 6].astype(np.float32)
+        """Every array of the episode (T, ...), the derived ones included, in the stores'
+        order."""
+        if not self.columns:
+            return {}
+        got = {k: np.asarray(v) for k, v in self.columns.items()}
+        if self._layout is not None:
+            objects = self._layout.object_poses(got["env_state"])
+            fingers = {self.arms[0]: self._layout.gripper_states(got["env_state"])}
+        else:
+            objects = {o: got.pop(f"object_poses/{o}") for o in self.objects}
+            fingers = {a: got.pop(f"fingers/{a}").astype(np.float64) for a in self.arms}
+        eefs = {a: got[arm_key("eef_pose", a)] for a in self.arms}
+        if self.several:
+            obs = arms_observation_values(eefs, fingers, objects, self.objects)
+        else:
+            arm = self.arms[0]
+            obs = observation_values(eefs[arm], fingers[arm], objects, self.objects)
+        signals = {k: v for k, v in got.items() if k.startswith("subtask_signals/")}
+        out = {k: v for k, v in got.items() if k not in signals}  # actions ... env_state
+        out |= {f"object_poses/{o}": objects[o] for o in self.objects}
+        out |= signals
+        out |= {f"obs/{k}": np.asarray(v, np.float32) for k, v in obs.items()}
+        for n, arm in enumerate(self.arms):  # each arm's 7 action entries end with its grip
+            out[arm_key("gripper", arm)] = out["actions"][:, 7 * n + 6].astype(np.float32)
         return out
 
 
@@ -846,6 +862,6 @@ def replay_actions(
             arm: a.action_to_target_pose(action[7 * n : 7 * n + 7])
             for n, (arm, a) in enumerate(each.items())
         }
-        recorder.record(env, eefs, env.object_poses(), action, targets)
+        recorder.record(env, eefs, action, targets)
         env.step(action)
     return recorder.arrays(), bool(env.is_success())

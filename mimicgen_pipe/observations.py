@@ -46,10 +46,10 @@ def _is_arms(key: str) -> bool:
 
 
 def _quat(rotation: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
-    q = poses.matrix_to_quat_wxyz(rotation)  # w >= 0
-    if reference is not None and float(q @ reference) < 0:
-        q = -q
-    return q
+    q = poses.matrix_to_quat_wxyz_stepwise(rotation)  # w >= 0, the same floats one or many
+    if reference is None:
+        return q
+    return np.where((q @ reference)[..., None] < 0, -q, q)
 
 
 def low_dim_observation(
@@ -69,26 +69,28 @@ def observation_values(
     object_poses: Mapping[str, np.ndarray],
     objects: Sequence[str],
 ) -> dict[str, np.ndarray]:
-    """Observation of one step in float64 (a recorder casts a whole episode's at once).
+    """Observation of one step, or of many at once (leading dimensions), in float64 (a
+    recorder casts a whole episode's at once); the same floats either way.
 
-    eef_pose: 4x4 end-effector (TCP) pose, world frame. gripper_qpos: finger joint positions
-    [m]. object_poses: object name -> 4x4 pose, world frame. Relative positions
+    eef_pose: (..., 4, 4) end-effector (TCP) pose, world frame. gripper_qpos: (..., n)
+    finger joint positions [m]. object_poses: object name -> (..., 4, 4) pose, world frame.
+    Relative positions
     (``eef_to_<obj>_pos`` = object minus end-effector position, ``<a>_to_<b>_pos`` = b minus
     a) are in the world frame.
     """
     out = {
-        "eef_pos": eef_pose[:3, 3],
-        "eef_quat": _quat(eef_pose[:3, :3], EEF_QUAT_REFERENCE),
+        "eef_pos": eef_pose[..., :3, 3],
+        "eef_quat": _quat(eef_pose[..., :3, :3], EEF_QUAT_REFERENCE),
         "gripper_qpos": np.asarray(gripper_qpos, np.float64),
     }
     for o in objects:
         t = object_poses[o]
-        out[f"{o}_pos"] = t[:3, 3]
-        out[f"{o}_quat"] = _quat(t[:3, :3], None)
-        out[f"eef_to_{o}_pos"] = t[:3, 3] - eef_pose[:3, 3]
+        out[f"{o}_pos"] = t[..., :3, 3]
+        out[f"{o}_quat"] = _quat(t[..., :3, :3], None)
+        out[f"eef_to_{o}_pos"] = t[..., :3, 3] - eef_pose[..., :3, 3]
     for i, a in enumerate(objects):
         for b in objects[i + 1 :]:
-            out[f"{a}_to_{b}_pos"] = object_poses[b][:3, 3] - object_poses[a][:3, 3]
+            out[f"{a}_to_{b}_pos"] = object_poses[b][..., :3, 3] - object_poses[a][..., :3, 3]
     return out
 
 

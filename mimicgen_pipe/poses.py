@@ -106,6 +106,65 @@ def pose_from_pq(p: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
     return t
 
 
+def pose_from_pq_stepwise(p: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
+    """(T, 3) positions [m] and (T, 4) wxyz quaternions -> (T, 4, 4) poses, each row's the
+    same floats, bit for bit, as pose_from_pq of that row alone: the one-pose arithmetic,
+    vectorised. A recorder derives a whole episode's poses with it after the episode."""
+    w, x, y, z = np.moveaxis(np.asarray(q_wxyz, np.float64), -1, 0)
+    n = _root(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    t = np.zeros(w.shape + (4, 4))
+    t[..., 0, :3] = np.stack(
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1
+    )
+    t[..., 1, :3] = np.stack(
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1
+    )
+    t[..., 2, :3] = np.stack(
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1
+    )
+    t[..., :3, 3] = np.asarray(p, np.float64)
+    t[..., 3, 3] = 1.0
+    return t
+
+
+def matrix_to_quat_wxyz_stepwise(r: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotations -> (..., 4) wxyz quaternions, w >= 0, each the same floats, bit
+    for bit, as matrix_to_quat_wxyz of that matrix alone (the one-matrix path's arithmetic,
+    vectorised; the batched path's own arithmetic differs in the last bit)."""
+    r = np.asarray(r, dtype=np.float64)
+    if r.ndim == 2:
+        return _matrix_to_quat_one(r)
+    m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
+    cand = np.stack(
+        [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1
+    )
+    k = np.argmax(cand, axis=-1)  # the first largest, as max() picks it
+    s = _root(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300)) * 2
+    d10, d01 = r[..., 1, 0], r[..., 0, 1]
+    d20, d02 = r[..., 2, 0], r[..., 0, 2]
+    d21, d12 = r[..., 2, 1], r[..., 1, 2]
+    rows = [
+        (0.25 * s, (d21 - d12) / s, (d02 - d20) / s, (d10 - d01) / s),
+        ((d21 - d12) / s, 0.25 * s, (d01 + d10) / s, (d02 + d20) / s),
+        ((d02 - d20) / s, (d01 + d10) / s, 0.25 * s, (d12 + d21) / s),
+        ((d10 - d01) / s, (d02 + d20) / s, (d12 + d21) / s, 0.25 * s),
+    ]
+    q = np.empty(r.shape[:-2] + (4,))
+    for i, row in enumerate(rows):
+        sel = k == i
+        q[sel] = np.stack([np.asarray(c)[sel] for c in row], -1)
+    c0, c1, c2, c3 = np.moveaxis(q, -1, 0)
+    n = _root(c0 * c0 + c1 * c1 + c2 * c2 + c3 * c3) * np.where(c0 >= 0, 1.0, -1.0)
+    return q / n[..., None]
+
+
+def _root(x: np.ndarray) -> np.ndarray:
+    """x ** 0.5 element by element as Python floats take it (C's pow), as the one-pose paths
+    do: np.sqrt may differ from pow in the last bit."""
+    return np.array([v**0.5 for v in np.ravel(x).tolist()]).reshape(np.shape(x))
+
+
 def pose_to_pq(t: np.ndarray) -> np.ndarray:
     """(..., 4, 4) pose -> (..., 7) [x, y, z, qw, qx, qy, qz]."""
     t = np.asarray(t, dtype=np.float64)

@@ -207,3 +207,37 @@ def test_a_converted_demo_that_starts_from_another_plan_is_dropped(env, tmp_path
     episodes, dropped, tried = source.source_episodes(env, 3, 0, None, tmp_path)
     assert [ep.seed for ep in episodes] == [0]
     assert (dropped, tried) == (6, 7)  # 4 failed plans, seed 1's conversion, seed 2's join
+
+
+def test_poses_and_observation_derived_after_the_attempt_equal_reads_at_every_step(
+    pipeline, env, monkeypatch
+):
+    """The recorder reads the object poses and the fingers from the stored states after an
+    attempt (the env's state_layout), and the observation from them, all steps at once.
+    Recorded the old way, read from the env before every step, the attempt must be the same
+    bit for bit; and the layout must point at what object_poses() and gripper_state() read."""
+    from envs import task_spec
+    from mimicgen_pipe.generation import GenerationConfig, run_attempt
+    from mimicgen_pipe.runner import attempt_seed, source_demos
+    from tests.conftest import same_attempt
+
+    spec = task_spec("maniskill", "stack_cube")
+    sources = source_demos(read_store(pipeline / "data/parsed/stack_cube.zarr"), spec.objects)
+    layout = env.state_layout()
+    assert layout is not None and set(layout.objects) == set(spec.objects)
+    env.reset(seed=4, variant="D1")
+    rng = np.random.default_rng(0)
+    for _ in range(15):
+        env.step(rng.uniform(-1, 1, 7))
+        state = env.get_state()[None]
+        for name, pose in env.object_poses().items():
+            assert layout.object_poses(state)[name][0].tobytes() == pose.tobytes()
+        assert layout.gripper_states(state)[0].tobytes() == env.gripper_state().tobytes()
+    seeds = [attempt_seed(0, "D1", i) for i in range(3)]
+    env.rebuild()  # each run of attempts on a new scene, as a block of them runs
+    derived = [run_attempt(env, sources, spec, GenerationConfig(), "D1", s) for s in seeds]
+    monkeypatch.setattr(env, "state_layout", lambda: None)
+    env.rebuild()
+    read = [run_attempt(env, sources, spec, GenerationConfig(), "D1", s) for s in seeds]
+    assert all(same_attempt(a, b) for a, b in zip(derived, read, strict=True))
+    assert "obs/cubeA_quat" in derived[0].steps and len(derived[0].steps["actions"]) > 50

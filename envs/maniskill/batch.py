@@ -213,6 +213,11 @@ class _Slot:
     def get_state(self) -> np.ndarray:
         return self.batch._read("state")[self.k].astype(np.float32)
 
+    def state_layout(self) -> None:
+        """None: a slot reads its poses from the batch's torch buffers, float32 rounded
+        otherwise than its stored state; the recorder reads them at every step."""
+        return None
+
     def set_state(self, state: np.ndarray) -> None:
         b = self.batch
         idx = torch.tensor([self.k], device=b._u.device)

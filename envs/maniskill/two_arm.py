@@ -125,6 +125,10 @@ class TwoArmManiSkillEnv:
     def get_state(self) -> np.ndarray:
         return self._u.get_state()[0].numpy().astype(np.float32)
 
+    def state_layout(self) -> None:
+        """None: the recorder reads both arms' fingers and the poses at every step."""
+        return None
+
     def set_state(self, state: np.ndarray) -> None:
         self._u.set_state(torch.as_tensor(np.asarray(state, np.float32))[None])
         self._info = None

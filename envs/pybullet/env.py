@@ -260,6 +260,11 @@ class PyBulletEnv:
         # scene every reset() built, bit for bit
         return np.concatenate(parts).astype(np.float32)
 
+    def state_layout(self) -> None:
+        """None: PyBullet's poses are float64 and the state float32, so the poses the
+        recorder stores are read at every step."""
+        return None
+
     def set_state(self, state: np.ndarray) -> None:
         """Restore ``state`` (get_state()'s layout) in a freshly built scene. Bullet keeps
         contact caches between steps that the state vector does not hold; starting every
