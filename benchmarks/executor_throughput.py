@@ -19,9 +19,12 @@ from __future__ import annotations
 
 import argparse
 import functools
+import hashlib
 import json
 import os
 import secrets
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -45,17 +48,13 @@ from mimicgen_pipe.store import read_store
 OUT = figures_path(__file__)
 
 
-def same(a: Attempt, b: Attempt) -> bool:
-    """The same attempt: outcome and every step array, names, dtypes and bytes."""
-    return (
-        a.seed == b.seed
-        and a.success == b.success
-        and list(a.steps) == list(b.steps)
-        and all(
-            a.steps[k].dtype == b.steps[k].dtype and a.steps[k].tobytes() == b.steps[k].tobytes()
-            for k in a.steps
-        )
-    )
+def digest(a: Attempt) -> str:
+    """An attempt's seed, outcome and every step array (names, dtypes, shapes, bytes)."""
+    h = hashlib.sha256(f"{a.seed} {a.success}".encode())
+    for k, v in a.steps.items():
+        h.update(f"{k} {v.dtype} {v.shape}".encode())
+        h.update(np.ascontiguousarray(v).tobytes())
+    return h.hexdigest()
 
 
 def timed(job: AttemptJob, seeds: list[int], executor: Executor, tmp: Path) -> tuple[float, list]:
@@ -81,7 +80,8 @@ def worker_counts(most: int) -> list[int]:
 def two_raylets(job: AttemptJob, seeds: list[int], tmp: Path) -> tuple[float, list, float]:
     """The attempts on a Ray of two raylets here (a head and a node joined to it, one CPU
     each) with token authentication on, reached by address as a cluster is; seconds, the
-    attempts, and the seconds the two nodes took to start."""
+    attempts, and the seconds the two nodes took to start. Run in a process of its own: Ray
+    keeps what it read of token authentication for the life of a process."""
     import ray
     from ray._raylet import Config
     from ray.cluster_utils import Cluster
@@ -113,6 +113,7 @@ def main() -> None:
     p.add_argument("--variant", default="D0")
     p.add_argument("--attempts", type=int, default=160)
     p.add_argument("--max-workers", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--two-raylets-to", type=Path, help=argparse.SUPPRESS)  # the child's run
     args = p.parse_args()
     spec = envs.task_spec("maniskill", "stack_cube")
     job = AttemptJob(
@@ -123,23 +124,29 @@ def main() -> None:
         variant=args.variant,
     )
     seeds = [attempt_seed(0, args.variant, i) for i in range(args.attempts)]
+    if args.two_raylets_to:
+        with tempfile.TemporaryDirectory() as tmp:
+            seconds, attempts, started = two_raylets(job, seeds, Path(tmp))
+        out = {"seconds": seconds, "started": started, "digests": [digest(a) for a in attempts],
+               "kept": sum(a.success for a in attempts)}  # fmt: skip
+        args.two_raylets_to.write_text(json.dumps(out))
+        return
     import ray
 
     from mimicgen_pipe.executors.ray import _connect
 
     runs: list[dict] = []
-    reference: list[Attempt] | None = None
+    reference: list[str] = []
 
-    def record(kind: str, workers: int, seconds: float, attempts: list[Attempt], **extra) -> None:
-        nonlocal reference
-        reference = reference or attempts
-        kept = sum(a.success for a in attempts)
+    def record(kind: str, workers: int, seconds: float, digests: list[str], kept: int,
+               **extra) -> None:  # fmt: skip
+        reference[:] = reference or digests
         runs.append({
             "executor": kind, "workers": workers, "seconds": round(seconds, 2),
-            "attempts_per_second": round(len(attempts) / seconds, 3),
+            "attempts_per_second": round(len(digests) / seconds, 3),
+            "demos": kept,
             "demos_per_hour": round(3600 * kept / seconds),
-            "same_attempts_as_local_1": all(
-                same(a, b) for a, b in zip(attempts, reference, strict=True)),
+            "same_attempts_as_local_1": digests == reference,
             **extra,
         })  # fmt: skip
         r = runs[-1]
@@ -147,22 +154,30 @@ def main() -> None:
               f"attempts/s  {r['demos_per_hour']:6d} demos/h  same attempts: "
               f"{r['same_attempts_as_local_1']}", flush=True)  # fmt: skip
 
+    def run(executor: Executor, tmp: str) -> tuple[float, list[str], int]:
+        seconds, attempts = timed(job, seeds, executor, Path(tmp))
+        return seconds, [digest(a) for a in attempts], sum(a.success for a in attempts)
+
     with tempfile.TemporaryDirectory() as tmp:
         for n in worker_counts(args.max_workers):
-            record("local", n, *timed(job, seeds, Executor("local", n), Path(tmp)))
+            record("local", n, *run(Executor("local", n), tmp))
             t0 = time.perf_counter()
             _connect(n, None)  # the local Ray the executor would start, started ahead
             ray_start = time.perf_counter() - t0
-            record("ray", n, *timed(job, seeds, Executor("ray", n), Path(tmp)),
-                   ray_start_seconds=round(ray_start, 1))  # fmt: skip
+            record("ray", n, *run(Executor("ray", n), tmp), ray_start_seconds=round(ray_start, 1))
             ray.shutdown()
-        seconds, attempts, started = two_raylets(job, seeds, Path(tmp))
-        record("ray, 2 raylets", 2, seconds, attempts, ray_start_seconds=round(started, 1))
+        child = Path(tmp) / "two_raylets.json"
+        subprocess.run([sys.executable, __file__, "--parsed", args.parsed, "--variant",
+                        args.variant, "--attempts", str(args.attempts), "--two-raylets-to",
+                        str(child)], check=True)  # fmt: skip
+        two = json.loads(child.read_text())
+        record("ray, 2 raylets", 2, two["seconds"], two["digests"], two["kept"],
+               ray_start_seconds=round(two["started"], 1))  # fmt: skip
     base = {r["executor"]: r["attempts_per_second"] for r in runs if r["workers"] == 1}
     for r in runs:
         one = base.get(r["executor"].split(",")[0], base["local"])
         r["efficiency_per_worker"] = round(r["attempts_per_second"] / (r["workers"] * one), 3)
-    dgr = 100 * np.mean([a.success for a in reference or []])
+    dgr = 100 * runs[0]["demos"] / len(seeds)
     print(f"\nStackCube {args.variant}: {args.attempts} attempts, DGR {dgr:.1f} %")
     print("efficiency per worker (throughput / (workers x the same executor's 1-worker)):")
     for r in runs:

@@ -41,7 +41,7 @@ from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
 from mimicgen_pipe.store import EpisodeStore, write_store
 from mimicgen_pipe.taskspec import ARM, TaskSpec, arm_key
 
-ATTEMPTS_PER_BLOCK = 16  # rebuilding a ManiSkill scene costs ~0.24 s, ~4% of a block
+ATTEMPTS_PER_BLOCK = 16  # rebuilding a ManiSkill scene costs ~0.1 s, ~3% of a block
 
 
 def attempt_seed(seed: int, variant: str, attempt: int) -> int:
