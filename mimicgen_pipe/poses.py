@@ -48,14 +48,21 @@ def matrix_to_quat_wxyz(r: np.ndarray) -> np.ndarray:
     r = np.asarray(r, dtype=np.float64)
     if r.ndim == 2:  # one matrix: the batched path below costs ~15x more per call
         return _matrix_to_quat_one(r)
+    q = _shepperd(r, np.sqrt)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def _shepperd(r: np.ndarray, root) -> np.ndarray:
+    """(..., 4) unnormalised wxyz quaternions of rotations (..., 3, 3) by Shepperd's method:
+    from the largest of the four squared components (the first, on a tie), for stability;
+    ``root`` takes its square root (np.sqrt, or _root for the one-matrix path's floats)."""
     m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
-    # Shepperd's method: pick the largest of the four squared components for stability.
     cand = np.stack(
         [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1
     )
     k = np.argmax(cand, axis=-1)
-    s = np.sqrt(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300)) * 2
-    q = np.empty(r.shape[:-2] + (4,))
+    s = root(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300)) * 2
     d10, d01 = r[..., 1, 0], r[..., 0, 1]
     d20, d02 = r[..., 2, 0], r[..., 0, 2]
     d21, d12 = r[..., 2, 1], r[..., 1, 2]
@@ -65,11 +72,11 @@ def matrix_to_quat_wxyz(r: np.ndarray) -> np.ndarray:
         ((d02 - d20) / s, (d01 + d10) / s, 0.25 * s, (d12 + d21) / s),
         ((d10 - d01) / s, (d02 + d20) / s, (d12 + d21) / s, 0.25 * s),
     ]
+    q = np.empty(r.shape[:-2] + (4,))
     for i, row in enumerate(rows):
         sel = k == i
         q[sel] = np.stack([np.asarray(c)[sel] for c in row], -1)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
+    return q
 
 
 def _matrix_to_quat_one(r: np.ndarray) -> np.ndarray:
@@ -135,25 +142,7 @@ def matrix_to_quat_wxyz_stepwise(r: np.ndarray) -> np.ndarray:
     r = np.asarray(r, dtype=np.float64)
     if r.ndim == 2:
         return _matrix_to_quat_one(r)
-    m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
-    cand = np.stack(
-        [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1
-    )
-    k = np.argmax(cand, axis=-1)  # the first largest, as max() picks it
-    s = _root(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300)) * 2
-    d10, d01 = r[..., 1, 0], r[..., 0, 1]
-    d20, d02 = r[..., 2, 0], r[..., 0, 2]
-    d21, d12 = r[..., 2, 1], r[..., 1, 2]
-    rows = [
-        (0.25 * s, (d21 - d12) / s, (d02 - d20) / s, (d10 - d01) / s),
-        ((d21 - d12) / s, 0.25 * s, (d01 + d10) / s, (d02 + d20) / s),
-        ((d02 - d20) / s, (d01 + d10) / s, 0.25 * s, (d12 + d21) / s),
-        ((d10 - d01) / s, (d02 + d20) / s, (d12 + d21) / s, 0.25 * s),
-    ]
-    q = np.empty(r.shape[:-2] + (4,))
-    for i, row in enumerate(rows):
-        sel = k == i
-        q[sel] = np.stack([np.asarray(c)[sel] for c in row], -1)
+    q = _shepperd(r, _root)
     c0, c1, c2, c3 = np.moveaxis(q, -1, 0)
     n = _root(c0 * c0 + c1 * c1 + c2 * c2 + c3 * c3) * np.where(c0 >= 0, 1.0, -1.0)
     return q / n[..., None]
