@@ -17,8 +17,12 @@ def quat_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:
     if q.ndim == 1:  # one quaternion: plain floats beat numpy's per-call overhead ~10x
         return np.array(_quat_rows_one(q))
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    r = np.empty(q.shape[:-1] + (3, 3))
+    return _rotation(*np.moveaxis(q, -1, 0))
+
+
+def _rotation(w: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices of unit quaternions given by their components (...)."""
+    r = np.empty(np.shape(w) + (3, 3))
     r[..., 0, 0] = 1 - 2 * (y * y + z * z)
     r[..., 0, 1] = 2 * (x * y - w * z)
     r[..., 0, 2] = 2 * (x * z + w * y)
@@ -119,17 +123,8 @@ def pose_from_pq_stepwise(p: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
     vectorised. A recorder derives a whole episode's poses with it after the episode."""
     w, x, y, z = np.moveaxis(np.asarray(q_wxyz, np.float64), -1, 0)
     n = _root(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
     t = np.zeros(w.shape + (4, 4))
-    t[..., 0, :3] = np.stack(
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1
-    )
-    t[..., 1, :3] = np.stack(
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1
-    )
-    t[..., 2, :3] = np.stack(
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1
-    )
+    t[..., :3, :3] = _rotation(w / n, x / n, y / n, z / n)
     t[..., :3, 3] = np.asarray(p, np.float64)
     t[..., 3, 3] = 1.0
     return t

@@ -214,8 +214,8 @@ class _Slot:
         return self.batch._read("state")[self.k].astype(np.float32)
 
     def state_layout(self) -> None:
-        """None: a slot reads its poses from the batch's torch buffers, float32 rounded
-        otherwise than its stored state; the recorder reads them at every step."""
+        """None: a slot reads its poses and fingers from the batch's own buffers, which no
+        layout of its state is checked against; the recorder reads them at every step."""
         return None
 
     def set_state(self, state: np.ndarray) -> None:
