@@ -57,11 +57,15 @@ def evaluated_checkpoints(epochs: Sequence[int], every_epochs: int) -> list[int]
 class Checkpoints:
     """The checkpoints of one training run that an evaluation rolls out: ``runs``, training
     seed -> its checkpoints in epoch order; ``epochs``, each checkpoint's epoch;
-    ``data_run_id``, the generate run of the training data (None for source demos)."""
+    ``data_run_id``, the generate run of the training data (None for source demos);
+    ``cameras``, those an image policy sees (none: a low-dim policy), rendered at
+    ``image_size`` (height, width) [px]."""
 
     runs: dict[int, list[Path]]
     epochs: dict[Path, int]
     data_run_id: Any
+    cameras: tuple[str, ...] = ()
+    image_size: tuple[int, int] | None = None
 
     @property
     def paths(self) -> list[Path]:
@@ -88,6 +92,7 @@ def checkpoints_to_evaluate(
         raise InputError(f"{exc}{made_by}") from None
     epochs: dict[Path, int] = {}
     data_run_ids: dict[str, object] = {}
+    images: dict[tuple, Path] = {}  # (image keys, size) -> the first checkpoint of them
     for ckpt in (c for ckpts in runs.values() for c in ckpts):
         model, meta = load_checkpoint(ckpt)
         check_meta(ckpt, meta)
@@ -105,7 +110,16 @@ def checkpoints_to_evaluate(
             )
         epochs[ckpt] = int(meta["epoch"])
         data_run_ids[str(ckpt)] = meta.get("data_run_id")
+        c = model.config
+        images.setdefault((c.image_keys, c.image_size if c.image_keys else None), ckpt)
     check_same_run(data_run_ids, "train")  # checkpoints of one training run only
+    if len(images) > 1:
+        (a, first), (b, other) = list(images.items())[:2]
+        raise InputError(
+            f"{directory}: {other} sees images {b[0] or 'none'} at {b[1]}, {first} sees "
+            f"{a[0] or 'none'} at {a[1]}; expected the checkpoints of one training run"
+        )
+    (image_keys, image_size) = next(iter(images))
     try:
         chosen = {
             seed: [
@@ -115,7 +129,8 @@ def checkpoints_to_evaluate(
         }
     except InputError as exc:
         raise InputError(f"{directory}: {exc}") from None
-    return Checkpoints(chosen, epochs, next(iter(data_run_ids.values())))
+    cameras = tuple(k.removesuffix("_image") for k in image_keys)
+    return Checkpoints(chosen, epochs, next(iter(data_run_ids.values())), cameras, image_size)
 
 
 class ClosedLoopPolicy(Protocol):

@@ -12,6 +12,7 @@ sign flip between two steps is a jump the policy would have to learn:
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -39,6 +40,14 @@ def _arm_keys(keys: tuple[str, ...], arms: Sequence[str]) -> tuple[str, ...]:
     prefixed with its name, then the objects' once."""
     own = tuple(k for k in keys if _is_arms(k))
     return tuple(f"{a}_{k}" for a in arms for k in own) + tuple(k for k in keys if k not in own)
+
+
+def is_robot_key(key: str) -> bool:
+    """An observation key of the robot (observation.state), not of an object: eef_pos,
+    eef_quat, gripper_qpos, or one of them after an arm's name (left_eef_pos);
+    eef_to_<obj>_pos is the object's, seen from the gripper."""
+    own = re.sub(r"^[A-Za-z0-9]+_(?=eef_|gripper_)", "", key)
+    return own.startswith(("eef_", "gripper_")) and not own.startswith("eef_to_")
 
 
 def _is_arms(key: str) -> bool:

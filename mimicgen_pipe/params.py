@@ -91,7 +91,8 @@ class CoverageParams:
 class TrainProfile:
     """BC-RNN size and schedule (paper N; robomimic's BC-RNN). hidden x layers LSTM, windows
     of seq_len steps, Adam at lr, epochs x steps_per_epoch gradient steps, a checkpoint every
-    checkpoint_every epochs; each training seed is its own run."""
+    checkpoint_every epochs; each training seed is its own run. With ``cameras``, an image
+    policy (mimicgen_pipe.policy.ImageEncoder per camera)."""
 
     hidden: int = 400
     layers: int = 2
@@ -105,18 +106,26 @@ class TrainProfile:
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
     threads: int = 0  # torch CPU threads per training; 0 keeps torch's default
     device: Literal["cpu", "cuda", "auto"] = "auto"  # auto: cuda when available
+    # an image policy's (the paper's image agents): the cameras it sees, obs/<camera>_image
+    # of an observed store; none: a low-dim policy, and the keys below are unused
+    cameras: list[str] = field(default_factory=list)
+    image_size: list[int] = field(default_factory=lambda: [84, 84])  # (height, width) [px]
+    shift: float = 0.1  # pixel-shift augmentation: up to this share of each dimension
+    channels: int = 32  # convolution channels of each camera's encoder
+    keypoints: int = 32  # spatial-softmax keypoints of each camera's encoder
+    image_features: int = 64  # features each camera's encoder gives the LSTM
 
 
 @dataclass(frozen=True)
 class TrainParams:
-    """profile: which of the two profiles below trains. num_demos: generated demos used
-    (the first N kept episodes; the source policy uses every source demo). obs_keys: the
-    policy's observation, keys of obs/ in the stores (mimicgen_pipe.observations); None:
-    the task's own (its spec's default_obs_keys), filled in by stages.stage_params.
-    workers: trainings side by side (one process each) when a stage trains several policies
-    or seeds."""
+    """profile: which of the profiles below trains (cpu_image: an image policy). num_demos:
+    generated demos used (the first N kept episodes; the source policy uses every source
+    demo). obs_keys: the policy's observation, keys of obs/ in the stores
+    (mimicgen_pipe.observations); None: the task's own (its spec's default_obs_keys), filled
+    in by stages.stage_params. workers: trainings side by side (one process each) when a
+    stage trains several policies or seeds."""
 
-    profile: Literal["cpu", "paper"] = "cpu"
+    profile: Literal["cpu", "paper", "cpu_image"] = "cpu"
     workers: int = 1
     num_demos: int = 1000
     obs_keys: list[str] | None = None
@@ -127,10 +136,16 @@ class TrainParams:
         )
     )
     paper: TrainProfile = field(default_factory=TrainProfile)
+    cpu_image: TrainProfile = field(
+        default_factory=lambda: TrainProfile(
+            hidden=400, batch_size=16, epochs=100, checkpoint_every=20, seeds=[0, 1, 2],
+            threads=2, device="cpu", cameras=["agentview", "eye_in_hand"],
+        )
+    )  # fmt: skip
 
     @property
     def active(self) -> TrainProfile:
-        return self.cpu if self.profile == "cpu" else self.paper
+        return getattr(self, self.profile)
 
 
 @dataclass(frozen=True)
@@ -336,6 +351,11 @@ _RANGES: dict[str, tuple[float, float]] = {
     "train.*.steps_per_epoch": (1, 1_000_000),
     "train.*.checkpoint_every": (1, 1_000_000),
     "train.*.threads": (0, 1024),
+    "train.*.image_size": (17, 4096),  # height, width [px]; 17: the encoder's smallest
+    "train.*.shift": (0.0, 0.5),
+    "train.*.channels": (1, 1024),
+    "train.*.keypoints": (1, 1024),
+    "train.*.image_features": (1, 8192),
     "train.workers": (1, 256),
     "evaluate.episodes": (1, 100_000),
     "evaluate.every_epochs": (1, 1_000_000),
@@ -380,8 +400,18 @@ def range_error(key: str, value: float) -> str | None:
 def _non_empty_unique(value: Any) -> str | None:
     if isinstance(value, list) and not value:
         return "expected at least one entry, got []"
+    return _unique(value)
+
+
+def _unique(value: Any) -> str | None:
     if isinstance(value, list) and len(set(map(str, value))) < len(value):
         return f"expected distinct entries, got {value!r}"
+    return None
+
+
+def _size(value: Any) -> str | None:
+    if isinstance(value, list) and len(value) != 2:
+        return f"expected [height, width] in pixels, got {_short(value)}"
     return None
 
 
@@ -446,6 +476,9 @@ _CHECKS: dict[str, Callable[[Any], str | None]] = {
     # each training seed is its own run, written under its own seed<k>/ folder
     "train.cpu.seeds": _non_empty_unique,
     "train.paper.seeds": _non_empty_unique,
+    "train.cpu_image.seeds": _non_empty_unique,
+    **{f"train.{p}.cameras": _unique for p in ("cpu", "paper", "cpu_image")},
+    **{f"train.{p}.image_size": _size for p in ("cpu", "paper", "cpu_image")},
     "transfer.tasks": _non_empty_unique,
     "transfer.variants": _non_empty_unique,
     "transfer.robots": _non_empty_unique,
@@ -595,12 +628,24 @@ _NOT_DATA = {
 }
 
 
+# TrainProfile's keys of an image policy, left out of a low-dim profile's record
+_IMAGE_KEYS = ("cameras", "image_size", "shift", "channels", "keypoints", "image_features")
+
+
 def training_params(train: TrainParams) -> dict[str, Any]:
     """train params as a checkpoint records them: without the worker count, which decides how
-    many trainings run side by side, not what any of them learns."""
+    many trainings run side by side, not what any of them learns. The image profile and a
+    low-dim profile's image keys are recorded only where they are used, so that low-dim
+    checkpoints keep the bytes they had before image policies."""
     t = as_dict(train)
     for key in _NOT_DATA["train"]:
         del t[key]
+    if train.profile != "cpu_image":
+        del t["cpu_image"]
+    for name in ("cpu", "paper", "cpu_image"):
+        if name in t and not t[name]["cameras"]:
+            for key in _IMAGE_KEYS:
+                del t[name][key]
     return t
 
 

@@ -31,6 +31,7 @@ from mimicgen_pipe.training_setup import (
     TrainingRun,
     initial_policy,
     lr_scheduler,
+    shift_images,
     validation_windows,
     window_index,
 )
@@ -44,13 +45,16 @@ CHECKPOINT_VERSION = 1
 @dataclass(frozen=True)
 class TrainingData:
     """What a training reads from a store: its training and validation episodes, each key's
-    observation width, the action width and the store's attributes."""
+    observation width, the action width and the store's attributes; for an image policy, the
+    cameras whose images the episodes hold and their (height, width) [px]."""
 
     train: SequenceData
     val: SequenceData
     obs_dims: tuple[int, ...]
     action_dim: int
     attrs: Mapping[str, Any]
+    cameras: tuple[str, ...] = ()
+    image_size: tuple[int, int] = (84, 84)
 
 
 def train_config(train: TrainParams, data: TrainingData) -> TrainConfig:
@@ -59,6 +63,18 @@ def train_config(train: TrainParams, data: TrainingData) -> TrainConfig:
     one."""
     p = train.active
     assert train.obs_keys is not None  # stages.stage_params fills in the task's own
+    h, w = data.image_size
+    images = (
+        {
+            "image_keys": tuple(f"{c}_image" for c in data.cameras),
+            "image_size": (h, w),
+            "channels": p.channels,
+            "keypoints": p.keypoints,
+            "image_features": p.image_features,
+        }
+        if data.cameras
+        else {}
+    )
     policy = PolicyConfig(
         tuple(train.obs_keys),
         data.obs_dims,
@@ -66,6 +82,7 @@ def train_config(train: TrainParams, data: TrainingData) -> TrainConfig:
         hidden=p.hidden,
         layers=p.layers,
         seq_len=p.seq_len,
+        **images,
     )
     return TrainConfig(
         policy,
@@ -76,6 +93,7 @@ def train_config(train: TrainParams, data: TrainingData) -> TrainConfig:
         checkpoint_every=p.checkpoint_every,
         lr_schedule=p.lr_schedule,
         device=p.device if p.device != "auto" else default_device(),
+        shift=(int(p.shift * h), int(p.shift * w)) if data.cameras else (0, 0),
     )
 
 
@@ -87,11 +105,15 @@ def load_training_data(
     split_seed: int,
     task: str | None = None,
     kind: str | Sequence[str] | None = None,
+    cameras: Sequence[str] = (),
+    image_size: tuple[int, int] = (84, 84),
 ) -> TrainingData:
     """The successful episodes of the store at ``path`` (the first ``num_demos`` of them
     when given), split by episode into training and validation sets
     (:func:`split_episodes` with ``val_fraction`` and a generator seeded ``split_seed``):
-    observations from ``data/obs/<key>`` in ``obs_keys`` order, and actions, as float32.
+    observations from ``data/obs/<key>`` in ``obs_keys`` order, and actions, as float32;
+    with ``cameras``, each camera's images ``data/obs/<camera>_image``, which must be
+    ``image_size`` (height, width) [px].
 
     Only those arrays and those episodes' rows are read (mimicgen_pipe.store.open_store),
     so memory is what the training holds, whatever else the store has. Raises InputError
@@ -108,6 +130,7 @@ def load_training_data(
             f"{view.path}: observation keys {missing} not in the store "
             f"(data/obs/ has: {', '.join(available) or 'nothing'})"
         )
+    check_cameras(view, cameras, image_size)
     if "success" in view.episode_keys:
         success = np.asarray(view.episode_field("success"), bool)
     else:
@@ -133,12 +156,42 @@ def load_training_data(
     dims = tuple(int(np.prod(view.shape(f"obs/{k}")[1:])) for k in obs_keys)
     action_dim = int(np.prod(view.shape("actions")[1:]))
     return TrainingData(
-        _read_sequences(view, obs_keys, dims, action_dim, keep[train_eps]),
-        _read_sequences(view, obs_keys, dims, action_dim, keep[val_eps]),
+        _read_sequences(view, obs_keys, dims, action_dim, keep[train_eps], cameras),
+        _read_sequences(view, obs_keys, dims, action_dim, keep[val_eps], cameras),
         dims,
         action_dim,
         view.attrs,
+        tuple(cameras),
+        image_size,
     )
+
+
+def check_cameras(view: StoreView, cameras: Sequence[str], image_size: tuple[int, int]) -> None:
+    """InputError naming the store unless it holds images of every camera of ``cameras``
+    (an image policy's), each ``image_size`` (height, width) [px]."""
+    from mimicgen_pipe.store import store_cameras
+
+    if not cameras:
+        return
+    have = store_cameras(view.attrs)
+    if not have:
+        raise InputError(
+            f"{view.path}: no camera images, but the image policy sees {', '.join(cameras)}; "
+            "train it on an observed store (the observe stage renders one from this store)"
+        )
+    missing = [c for c in cameras if c not in have]
+    if missing:
+        raise InputError(
+            f"{view.path}: no images of camera {', '.join(map(repr, missing))} (the store "
+            f"has {', '.join(have)}); observe it with those cameras or train on these"
+        )
+    wrong = {c: have[c] for c in cameras if have[c] != tuple(image_size)}
+    if wrong:
+        c, (h, w) = next(iter(wrong.items()))
+        raise InputError(
+            f"{view.path}: {c} images are {h}x{w} px (height x width), the policy's "
+            f"image_size is {image_size[0]}x{image_size[1]}"
+        )
 
 
 def _read_sequences(
@@ -147,9 +200,11 @@ def _read_sequences(
     dims: Sequence[int],
     action_dim: int,
     episodes: np.ndarray,
+    cameras: Sequence[str] = (),
 ) -> SequenceData:
     """``episodes`` (ascending store indices) as float32 SequenceData, each key read straight
-    into its columns: no copy of the data beyond the result."""
+    into its columns: no copy of the data beyond the result; with ``cameras``, their uint8
+    images, read straight into the camera axis."""
     ends = np.cumsum(view.lengths[episodes]).astype(np.int64)
     n = int(ends[-1]) if len(ends) else 0
     obs = np.empty((n, sum(dims)), np.float32)
@@ -158,17 +213,30 @@ def _read_sequences(
         view.read_rows(f"obs/{key}", episodes, obs[:, column : column + dim])
         column += dim
     actions = view.read_rows("actions", episodes, np.empty((n, action_dim), np.float32))
-    return SequenceData(obs, actions, ends)
+    images = None
+    if cameras:
+        from mimicgen_pipe.store import image_key
+
+        shape = view.shape(image_key(cameras[0]))[1:]
+        images = np.empty((n, len(cameras), *shape), np.uint8)
+        for i, camera in enumerate(cameras):
+            view.read_rows(image_key(camera), episodes, images[:, i])
+    return SequenceData(obs, actions, ends, images)
 
 
 def subset(data: SequenceData, episodes: np.ndarray) -> SequenceData:
     """The episodes ``episodes`` of ``data``, in that order (none: empty arrays)."""
+    images = data.images
     if len(episodes) == 0:
-        return SequenceData(data.obs[:0], data.actions[:0], np.zeros(0, np.int64))
+        empty = None if images is None else images[:0]
+        return SequenceData(data.obs[:0], data.actions[:0], np.zeros(0, np.int64), empty)
     starts, ends = data.episode_starts, data.episode_ends
     index = np.concatenate([np.arange(starts[i], ends[i]) for i in episodes])
     return SequenceData(
-        data.obs[index], data.actions[index], np.cumsum(ends[episodes] - starts[episodes])
+        data.obs[index],
+        data.actions[index],
+        np.cumsum(ends[episodes] - starts[episodes]),
+        None if images is None else images[index],
     )
 
 
@@ -305,21 +373,26 @@ def train_policy(
     schedule = lr_scheduler(opt, config)
     train_obs = torch.from_numpy(train_data.obs).to(device)
     train_actions = torch.from_numpy(train_data.actions).to(device)
-    val_idx = validation_windows(val_data, seq_len) if val_data.n_episodes else None
+    images = train_data.images  # an image policy's, gathered per batch from host memory
+    shifts = torch.Generator().manual_seed(seed)  # the image augmentation's draws
+    val_idx = None
+    if val_data.n_episodes:
+        limit = VAL_WINDOWS_IMAGES if images is not None else 2000
+        val_idx = validation_windows(val_data, seq_len, limit)
     history: list[dict[str, float]] = []
     t0 = time.perf_counter()
     for epoch in range(1, config.epochs + 1):
         model.train()
         total = 0.0
         for _ in range(config.steps_per_epoch):
-            idx = torch.from_numpy(
-                window_index(
-                    train_data,
-                    rng.integers(0, len(train_data.obs), config.batch_size),
-                    seq_len,
-                )
-            ).to(device)
-            loss = nll_loss(model, train_obs[idx], train_actions[idx])
+            windows = window_index(
+                train_data, rng.integers(0, len(train_data.obs), config.batch_size), seq_len
+            )
+            idx = torch.from_numpy(windows).to(device)
+            frames = None
+            if images is not None:
+                frames = _frames(images, windows, config.shift, shifts).to(device)
+            loss = nll_loss(model, train_obs[idx], train_actions[idx], frames)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -330,13 +403,7 @@ def train_policy(
         if val_idx is not None:
             model.eval()
             with torch.no_grad():
-                val = float(
-                    nll_loss(
-                        model,
-                        torch.from_numpy(val_data.obs[val_idx]).to(device),
-                        torch.from_numpy(val_data.actions[val_idx]).to(device),
-                    )
-                )
+                val = _validation_loss(model, val_data, val_idx, device)
         row = {
             "epoch": epoch,
             "step": epoch * config.steps_per_epoch,
@@ -350,6 +417,39 @@ def train_policy(
         if epoch % config.checkpoint_every == 0 or epoch == config.epochs:
             on_checkpoint(epoch, model)  # save_checkpoint stores CPU tensors
     return history
+
+
+VAL_WINDOWS_IMAGES = 200  # an image policy's validation windows: ~4000 images per camera
+VAL_CHUNK = 50  # windows per forward pass of an image policy's validation
+
+
+def _frames(
+    images: np.ndarray, windows: np.ndarray, shift: tuple[int, int], generator: torch.Generator
+) -> torch.Tensor:
+    """The (B, T, cameras, H, W, 3) uint8 images of (B, T) step ``windows``, each image
+    shifted on its own (:func:`shift_images`)."""
+    frames = torch.from_numpy(images[windows])
+    flat = frames.view(-1, *frames.shape[-3:])
+    return shift_images(flat, shift, generator).view(frames.shape)
+
+
+def _validation_loss(
+    model: BCRNN, data: SequenceData, windows: np.ndarray, device: torch.device
+) -> float:
+    """The NLL of the validation ``windows``: one pass for a low-dim policy; an image
+    policy's in chunks of VAL_CHUNK windows, unshifted, averaged over the windows."""
+
+    def loss(rows: np.ndarray) -> torch.Tensor:
+        frames = None
+        if data.images is not None:
+            frames = torch.from_numpy(data.images[rows]).to(device)
+        obs = torch.from_numpy(data.obs[rows]).to(device)
+        return nll_loss(model, obs, torch.from_numpy(data.actions[rows]).to(device), frames)
+
+    if data.images is None:
+        return float(loss(windows))
+    chunks = [windows[i : i + VAL_CHUNK] for i in range(0, len(windows), VAL_CHUNK)]
+    return float(sum(float(loss(c)) * len(c) for c in chunks) / len(windows))
 
 
 def run_training(
@@ -465,6 +565,8 @@ def policy_training(params: Params, name: str, store: Path) -> PolicyTraining:
         SPLIT_SEED,
         task=params.task,
         kind="source" if source else "generated",
+        cameras=train.active.cameras,
+        image_size=(train.active.image_size[0], train.active.image_size[1]),
     )
     return PolicyTraining(
         name,
@@ -507,7 +609,9 @@ def train_policies(
             label = f"train {training.name} seed {seed}"
             runs.append(TrainingRun(data.train, data.val, training.config, seed, label, len(runs)))
             owners.append(k)
-    on_gpu = torch.device(runs[0].config.device).type == "cuda"
+    # the stacked network is the LSTM's alone: image policies train one by one
+    image = bool(runs[0].config.policy.image_keys)
+    on_gpu = torch.device(runs[0].config.device).type == "cuda" and not image
     results = stacked_trainings(runs) if on_gpu else run_trainings(runs, workers, threads)
     curves: list[list[dict[str, float]]] = [[] for _ in trainings]
     finished = 0

@@ -19,11 +19,13 @@ from mimicgen_pipe.policy import BCRNN, PolicyConfig
 @dataclass(frozen=True)
 class SequenceData:
     """Episodes concatenated: obs (N, D) float32, actions (N, A) float32, episode_ends (E,)
-    cumulative exclusive ends."""
+    cumulative exclusive ends; for an image policy, images (N, cameras, H, W, 3) uint8 RGB
+    (cameras in PolicyConfig.image_keys order)."""
 
     obs: np.ndarray
     actions: np.ndarray
     episode_ends: np.ndarray
+    images: np.ndarray | None = None
 
     @property
     def episode_starts(self) -> np.ndarray:
@@ -50,6 +52,7 @@ class TrainConfig:
     checkpoint_every: int
     lr_schedule: Literal["constant", "cosine"] = "constant"
     device: str = "cpu"
+    shift: tuple[int, int] = (0, 0)
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,23 @@ def validation_windows(data: SequenceData, seq_len: int, limit: int = 2000) -> n
     )
     starts = starts[np.linspace(0, len(starts) - 1, min(limit, len(starts))).astype(int)]
     return window_index(data, starts, seq_len)
+
+
+def shift_images(
+    images: torch.Tensor, shift: tuple[int, int], generator: torch.Generator
+) -> torch.Tensor:
+    """Random shifts of (N, H, W, C) images, each its own: down by dy and right by dx pixels,
+    drawn uniformly from [-shift[0], shift[0]] and [-shift[1], shift[1]], the border pixels
+    repeated into the uncovered strip (the paper's pixel-shift augmentation, as pad-and-crop
+    with edge padding)."""
+    if shift == (0, 0):
+        return images
+    n, h, w = images.shape[:3]
+    dy = torch.randint(-shift[0], shift[0] + 1, (n, 1), generator=generator)
+    dx = torch.randint(-shift[1], shift[1] + 1, (n, 1), generator=generator)
+    rows = (torch.arange(h) - dy).clamp_(0, h - 1)  # (N, H): source row of each output row
+    cols = (torch.arange(w) - dx).clamp_(0, w - 1)
+    return images[torch.arange(n)[:, None, None], rows[:, :, None], cols[:, None, :]]
 
 
 def initial_policy(policy: PolicyConfig, train_data: SequenceData, seed: int) -> BCRNN:

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import envs
 from mimicgen_pipe import layout, outputs, pipelines
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.observations import is_robot_key
 from mimicgen_pipe.params import Params, load_params, with_overrides
 
 
@@ -92,10 +96,20 @@ def stage_params(args: argparse.Namespace) -> Params:
         getattr(args, "robot", None),
     )
     spec = envs.task_spec(params.backend, params.task)  # the task the stage runs
+    # an image policy sees the objects in its cameras: its low-dim keys are the robot's own
+    image = bool(params.train.active.cameras)
     if params.train.obs_keys is not None:
-        envs.check_obs_keys(spec, params.train.obs_keys, f"{args.params}: train.obs_keys")
+        where = f"{args.params}: train.obs_keys"
+        envs.check_obs_keys(spec, params.train.obs_keys, where)
+        objects = [k for k in params.train.obs_keys if not is_robot_key(k)]
+        if image and objects:
+            raise InputError(
+                f"{where}: {objects} are the objects' keys, but train.profile "
+                f"{params.train.profile!r} is an image policy, which reads the robot's own "
+                "keys beside its cameras (paper N); drop them or set train.obs_keys: null"
+            )
         return params
-    keys = list(spec.default_obs_keys)
+    keys = [k for k in spec.default_obs_keys if not image or is_robot_key(k)]
     return dataclasses.replace(params, train=dataclasses.replace(params.train, obs_keys=keys))
 
 
@@ -132,3 +146,15 @@ def output_path(given: str | None, default: Path) -> Path:
         file=sys.stderr,
     )
     return moved
+
+
+def camera_renderer(
+    params: Params, robot: str, cameras: tuple[str, ...], size: tuple[int, int] | None
+) -> Callable[[], Any] | None:
+    """How a worker makes the renderer of the cameras a policy reads (None: it reads none)."""
+    if not cameras or size is None:
+        return None
+    height, width = size
+    return functools.partial(
+        envs.make_renderer, params.backend, params.task, robot, width, height, cameras
+    )

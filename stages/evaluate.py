@@ -21,7 +21,13 @@ from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.training import load_rollout_policy
-from stages import add_selection_arguments, check_data, output_path, stage_params
+from stages import (
+    add_selection_arguments,
+    camera_renderer,
+    check_data,
+    output_path,
+    stage_params,
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -81,9 +87,14 @@ def run(args: argparse.Namespace) -> None:
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
     # every checkpoint was checked to read these keys, of the task's widths
     inputs = {k: ((spec.observation_dims[k],), "float32") for k in params.train.obs_keys}
+    cameras, size = checkpoints.cameras, checkpoints.image_size
+    if cameras:  # an image policy's, rendered in the workers at its training size
+        assert size is not None
+        envs.check_cameras(params.backend, robot, cameras, f"{policies}: the policy's cameras")
+        inputs |= {f"{c}_image": ((*size, 3), "uint8") for c in cameras}
     n = len(checkpoints.paths)
-    for line in rollout_plan(f"evaluate {name}", inputs, (), None, n, e.episodes, spec.horizon,
-                             e.workers, "checkpoint"):  # fmt: skip
+    for line in rollout_plan(f"evaluate {name}", inputs, cameras, size, n, e.episodes,
+                             spec.horizon, e.workers, "checkpoint"):  # fmt: skip
         print(line)
     job = EvalJob(
         make_env=functools.partial(
@@ -94,6 +105,7 @@ def run(args: argparse.Namespace) -> None:
         horizon=spec.horizon,
         objects=spec.objects,
         arms=spec.arms,
+        make_cameras=camera_renderer(params, robot, cameras, size),
     )
     per_run, wall = evaluate_checkpoints(job, checkpoints, seeds, executor, f"evaluate {name}")
     metrics = evaluation_metrics(per_run)
@@ -107,6 +119,8 @@ def run(args: argparse.Namespace) -> None:
         workers=e.workers,
         executor=e.executor,
     )
+    if cameras:  # an image policy's (low-dim policies' metrics keep their keys)
+        metrics.update(cameras=list(cameras), image_size=list(size))
     with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
         write_success_rates(tmp_plot, per_run)
         identity = metrics_identity(

@@ -8,9 +8,7 @@ from __future__ import annotations
 import argparse
 import csv
 import functools
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import envs
 from mimicgen_pipe import layout
@@ -39,7 +37,13 @@ from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_me
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.taskspec import TaskSpec
-from stages import add_selection_arguments, check_data, episode_count, stage_params
+from stages import (
+    add_selection_arguments,
+    camera_renderer,
+    check_data,
+    episode_count,
+    stage_params,
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -80,18 +84,6 @@ def write_episodes(path: Path, rollouts: list[Rollout]) -> None:
         writer = csv.writer(f)
         writer.writerow(["episode", "seed", "success", "steps"])
         writer.writerows((i, r.seed, int(r.success), r.steps) for i, r in enumerate(rollouts))
-
-
-def camera_renderer(
-    params: Params, robot: str, cameras: tuple[str, ...], size: tuple[int, int] | None
-) -> Callable[[], Any] | None:
-    """How a worker makes the renderer of the cameras a policy reads (None: it reads none)."""
-    if not cameras or size is None:
-        return None
-    height, width = size
-    return functools.partial(
-        envs.make_renderer, params.backend, params.task, robot, width, height, cameras
-    )
 
 
 def checkpoint_epoch(fmt: str, path: Path, label: str) -> tuple[int | None, str]:

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,6 +52,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mimicgen_pipe.camera_calibration import store_calibration
+from mimicgen_pipe.observations import is_robot_key
 from mimicgen_pipe.store import EpisodeStore, store_cameras
 
 FILE_NAME = "lerobot"  # the dataset's folder in the export directory
@@ -92,14 +92,6 @@ def check(store: EpisodeStore, info) -> str | None:
     if why is None and narrow:
         why = f"camera {narrow[0]!r} is narrower than {MIN_VIDEO_WIDTH} px (its video encoder)"
     return why
-
-
-def is_robot_key(key: str) -> bool:
-    """An observation key of the robot (observation.state), not of an object: eef_pos,
-    eef_quat, gripper_qpos, or one of them after an arm's name (left_eef_pos);
-    eef_to_<obj>_pos is the object's, seen from the gripper."""
-    own = re.sub(r"^[A-Za-z0-9]+_(?=eef_|gripper_)", "", key)
-    return own.startswith(("eef_", "gripper_")) and not own.startswith("eef_to_")
 
 
 def state_keys(obs_keys: Sequence[str]) -> dict[str, list[str]]:

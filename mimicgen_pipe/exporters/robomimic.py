@@ -103,7 +103,7 @@ def arms_of(keys: Sequence[str]) -> tuple[str, ...]:
 def object_keys(obs_keys: Sequence[str]) -> list[str]:
     """The keys of ``obs_keys`` that ``obs/object`` concatenates: the objects' (those
     LeRobot's export puts in observation.environment_state), in order."""
-    from mimicgen_pipe.exporters.lerobot import is_robot_key
+    from mimicgen_pipe.observations import is_robot_key
 
     return [k for k in obs_keys if not is_robot_key(k)]
 
