@@ -140,3 +140,32 @@ def test_a_task_caps_the_action_noise_its_tolerances_take():
     assert capped.action_noise(0.025) == 0.01 and capped.action_noise(0.005) == 0.005
     with pytest.raises(ValueError, match="max_action_noise"):
         dataclasses.replace(plug, max_action_noise=-0.01)
+
+
+@pytest.mark.sim
+def test_a_task_with_geometry_of_its_own_has_its_own_env_and_leaves_its_base_as_it_was():
+    """peg_insertion_square sets PegInsertionSide's hole clearance to Square's 6.75 mm
+    (ManiSkillTask.env_attributes) on an env class of its own; peg_insertion, built in the
+    same process, keeps ManiSkill's 3 mm, and the square task's demonstrator records in the
+    square task's env."""
+    from envs.maniskill.source import demo_env_id
+    from envs.maniskill.tasks.peg_insertion_square import SQUARE_CLEARANCE
+
+    square, stock = (
+        envs.make_env("maniskill", t) for t in ("peg_insertion_square", "peg_insertion")
+    )
+    try:
+        clearance = {
+            name: float(e.unwrapped.box_hole_radii[0] - e.unwrapped.peg_half_sizes[0, 1])
+            for name, e in (("square", square), ("stock", stock))
+        }
+        assert clearance["square"] == pytest.approx(SQUARE_CLEARANCE, abs=1e-6)
+        assert clearance["stock"] == pytest.approx(0.003, abs=1e-6)
+        ids = {e.task.env_id for e in (square, stock)}
+        assert ids == {"MimicGenpeg_insertion_square-PegInsertionSide-v1",
+                       "MimicGenPegInsertionSide-v1"}  # fmt: skip
+        assert demo_env_id(square.task) == square.task.env_id
+        assert demo_env_id(stock.task) == "PegInsertionSide-v1"
+    finally:
+        square.close()
+        stock.close()

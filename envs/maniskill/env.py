@@ -112,7 +112,8 @@ def variant_env_class(task: ManiSkillTask) -> type:
     process) as ``task.env_id``."""
     if task.env_id not in _VARIANT_CLASSES:
         base = REGISTERED_ENVS[task.base_env_id].cls
-        cls = type(f"MimicGen{base.__name__}", (VariantResets, base), {"task": task})
+        body = {"task": task, **task.env_attributes}
+        cls = type(f"MimicGen{base.__name__}", (VariantResets, base), body)
         register_env(task.env_id, max_episode_steps=task.spec.horizon)(cls)
         _VARIANT_CLASSES[task.env_id] = cls
     return _VARIANT_CLASSES[task.env_id]

@@ -106,6 +106,10 @@ class ManiSkillTask:
         D0 scene), or None when the demo fails.
     video_view: the render stage's camera, (eye, target) in the world frame [m]; None:
         envs/maniskill/render.py's view of one arm and its workspace.
+    env_attributes: class attributes of ManiSkill's env that the task's env class sets anew,
+        for geometry ManiSkill fixes as a class constant (e.g. PegInsertionSide's hole
+        clearance ``_clearance`` [m]); the task's env then has an id of its own, and its
+        source demos are planned in it.
     """
 
     spec: TaskSpec
@@ -127,6 +131,7 @@ class ManiSkillTask:
     arm_agents: dict[str, int] = field(default_factory=dict)
     demonstrator: Callable[[Any, int], Any] | None = None
     video_view: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    env_attributes: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.frames and self.rebuild_seed != CREATION_SEED:
@@ -136,7 +141,12 @@ class ManiSkillTask:
             )
 
     @property
+    def own_scene(self) -> bool:
+        """Whether the task's scene is not its base env's: actors of its own, or geometry."""
+        return self.load_scene is not None or bool(self.env_attributes)
+
+    @property
     def env_id(self) -> str:
-        if self.load_scene is not None:  # another scene than the base env's
+        if self.own_scene:
             return f"MimicGen{self.spec.name}-{self.base_env_id}"
         return f"MimicGen{self.base_env_id}"
