@@ -6,6 +6,12 @@ trained by robomimic's own train.py in the learners' virtualenv on the robomimic
 the same few observed demos; the observe stage's wall seconds per step for their images
 (its ``workers``). From them, the hours the paper's profiles take here: images for 1000
 demos, 600 epochs x 500 steps (image) and 2000 x 100 (low-dim) of training per policy.
+
+Then this project's image profile (params.yaml's train.cpu_image) on the same observed
+demos: seconds per gradient step of the train stage (the median over epochs 2..), and
+seconds per rollout step of the evaluate stage with its cameras rendered in one worker (an
+untrained policy's episodes run the whole horizon); from them, the hours of its training
+per seed and of rolling out one checkpoint for evaluate.episodes episodes at most.
 Written to metrics/benchmarks/image_agent.json.
 
 The demos are the first ``--episodes`` of a generated stack_cube store (default: the
@@ -78,6 +84,51 @@ def image_keys() -> list[str]:
     return config["observation"]["modalities"]["obs"]["rgb"]
 
 
+def cpu_image_costs(
+    cli: str, work: Path, params: dict, episodes: int, epochs: int, steps: int
+) -> dict[str, float]:
+    """The train.cpu_image profile's seconds per gradient step (its own threads) and per
+    rollout step (cameras rendered, one worker, torch on one thread as in every evaluate
+    worker) on ``work``'s observed.zarr, and the hours its full schedule and one checkpoint's
+    rollouts take at those rates."""
+    profile = params["train"]["cpu_image"]
+    run_params = dict(params)
+    run_params["train"] = params["train"] | {
+        "profile": "cpu_image",
+        "num_demos": episodes,
+        "val_fraction": 0.0,
+        "cpu_image": profile | {"epochs": epochs, "steps_per_epoch": steps,
+                                "checkpoint_every": epochs, "seeds": [0]},
+    }  # fmt: skip
+    run_params["evaluate"] = params["evaluate"] | {"episodes": 1, "every_epochs": epochs,
+                                                   "workers": 1}  # fmt: skip
+    (work / "cpu_image.yaml").write_text(yaml.safe_dump(run_params))
+    common = ("--params", "cpu_image.yaml", "--backend", "maniskill", "--task", "stack_cube")
+    run(cli, "train", *common, "--data", "D0_image", "--store", "observed.zarr",
+        "--out", "policy", "--metrics", "train.json", "--plot", "train.csv", cwd=work)  # fmt: skip
+    seconds = [float(r.split(",")[-1]) for r in (work / "train.csv").read_text().split()[1:]]
+    per_step = statistics.median(b - a for a, b in zip(seconds, seconds[1:], strict=False)) / steps
+    run(cli, "evaluate", *common, "--data", "D0_image", "--variant", "D0", "--policies",
+        "policy", "--metrics", "eval.json", "--plot", "eval.csv", cwd=work)  # fmt: skip
+    evaluated = json.loads((work / "eval.json").read_text())
+    if evaluated["success_rate_max"] > 0:
+        raise RuntimeError("the untrained policy succeeded: its episode ran short of the horizon")
+    rollout_step = evaluated["seconds_per_episode"] / evaluated["horizon"]
+    total_steps = params["train"]["cpu_image"]["epochs"] * profile["steps_per_epoch"]
+    rollout_episodes = params["evaluate"]["episodes"]
+    return {
+        "cpu_image_channels": profile["channels"],
+        "cpu_image_batch_size": profile["batch_size"],
+        "cpu_image_threads": profile["threads"],
+        "cpu_image_seconds_per_step": round(per_step, 4),
+        "cpu_image_rollout_seconds_per_step": round(rollout_step, 4),
+        "hours_cpu_image_profile_per_seed": round(per_step * total_steps / 3600, 2),
+        "hours_cpu_image_rollouts_per_checkpoint": round(
+            rollout_step * evaluated["horizon"] * rollout_episodes / 3600, 2
+        ),
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--store", type=Path, default=REPO / "data/generated/stack_cube_D0.zarr")
@@ -111,6 +162,7 @@ def main() -> None:
         per_step = {n: seconds_per_step(f"bc_rnn_{n}", dataset, work, a.epochs, a.steps)
                     for n in PAPER_STEPS}  # fmt: skip
         frames = int(observed["frames"])
+        ours = cpu_image_costs(cli, work, params, a.episodes, a.epochs, a.steps)
 
     render_s = observed["seconds"] / frames  # the stage's wall time, both workers
     figures = {
@@ -129,6 +181,10 @@ def main() -> None:
         "hours_paper_profile_image": round(per_step["image"] * PAPER_STEPS["image"] / 3600, 1),
         "hours_paper_profile_low_dim": round(
             per_step["low_dim"] * PAPER_STEPS["low_dim"] / 3600, 1
+        ),
+        **ours,
+        "robomimic_image_over_cpu_image": round(
+            per_step["image"] / ours["cpu_image_seconds_per_step"], 1
         ),
     }
     for k, v in figures.items():

@@ -21,6 +21,7 @@ from mimicgen_pipe.generation import arm_envs
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.observations import arms_observation_values, low_dim_observation
 from mimicgen_pipe.outputs import check_same_run
+from mimicgen_pipe.params import EvaluateParams
 from mimicgen_pipe.rollout_progress import StepCounter, StepProgress
 from mimicgen_pipe.taskspec import ARM
 from mimicgen_pipe.training import check_meta, find_checkpoints, load_checkpoint
@@ -131,6 +132,19 @@ def checkpoints_to_evaluate(
         raise InputError(f"{directory}: {exc}") from None
     cameras = tuple(k.removesuffix("_image") for k in image_keys)
     return Checkpoints(chosen, epochs, next(iter(data_run_ids.values())), cameras, image_size)
+
+
+def policy_inputs(
+    checkpoints: Checkpoints, obs_keys: Sequence[str], obs_dims: Mapping[str, int]
+) -> dict[str, tuple[tuple[int, ...], str]]:
+    """What the checkpoints' policy reads, key -> (shape, dtype): each low-dim key of
+    ``obs_keys`` (every checkpoint was checked to read them, of the task's widths
+    ``obs_dims``) and, for an image policy, each camera's ``<camera>_image``."""
+    inputs = {k: ((obs_dims[k],), "float32") for k in obs_keys}
+    if checkpoints.cameras and checkpoints.image_size is not None:
+        h, w = checkpoints.image_size
+        inputs |= {f"{c}_image": ((h, w, 3), "uint8") for c in checkpoints.cameras}
+    return inputs
 
 
 class ClosedLoopPolicy(Protocol):
@@ -393,6 +407,28 @@ def evaluate_checkpoints(
         for seed, ckpts in checkpoints.runs.items()
     }
     return per_run, wall
+
+
+def run_metrics(
+    checkpoints: Checkpoints, params: EvaluateParams, horizon: int, wall: float
+) -> dict[str, Any]:
+    """How an evaluation ran, for its metrics: the training data's generate run, episodes,
+    checkpoint rate, horizon [steps], wall time [s] and per episode, workers and executor;
+    for an image policy, its cameras and image size [px] (low-dim policies' metrics keep
+    their keys)."""
+    out: dict[str, Any] = {
+        "data_run_id": checkpoints.data_run_id,
+        "episodes": params.episodes,
+        "every_epochs": params.every_epochs,
+        "horizon": horizon,
+        "wall_seconds": wall,
+        "seconds_per_episode": wall / (len(checkpoints.paths) * params.episodes),
+        "workers": params.workers,
+        "executor": params.executor,
+    }
+    if checkpoints.cameras and checkpoints.image_size is not None:
+        out |= {"cameras": list(checkpoints.cameras), "image_size": list(checkpoints.image_size)}
+    return out
 
 
 def success_rate(rollouts: Sequence[Rollout]) -> float:

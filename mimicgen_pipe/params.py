@@ -138,8 +138,8 @@ class TrainParams:
     paper: TrainProfile = field(default_factory=TrainProfile)
     cpu_image: TrainProfile = field(
         default_factory=lambda: TrainProfile(
-            hidden=400, batch_size=16, epochs=100, checkpoint_every=20, seeds=[0, 1, 2],
-            threads=2, device="cpu", cameras=["agentview", "eye_in_hand"],
+            batch_size=16, epochs=400, checkpoint_every=50, threads=2, device="cpu",
+            cameras=["agentview", "eye_in_hand"], channels=16,
         )
     )  # fmt: skip
 

@@ -15,7 +15,9 @@ from mimicgen_pipe.evaluation import (
     checkpoints_to_evaluate,
     evaluate_checkpoints,
     evaluation_seed,
+    policy_inputs,
     rollout_plan,
+    run_metrics,
 )
 from mimicgen_pipe.executors import stage_executor
 from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
@@ -85,16 +87,12 @@ def run(args: argparse.Namespace) -> None:
         checkpoints_made_by(args.data, policies, args.policies is None),
     )  # fmt: skip
     seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
-    # every checkpoint was checked to read these keys, of the task's widths
-    inputs = {k: ((spec.observation_dims[k],), "float32") for k in params.train.obs_keys}
+    # an image policy's cameras, rendered in the workers at its training size
     cameras, size = checkpoints.cameras, checkpoints.image_size
-    if cameras:  # an image policy's, rendered in the workers at its training size
-        assert size is not None
-        envs.check_cameras(params.backend, robot, cameras, f"{policies}: the policy's cameras")
-        inputs |= {f"{c}_image": ((*size, 3), "uint8") for c in cameras}
-    n = len(checkpoints.paths)
-    for line in rollout_plan(f"evaluate {name}", inputs, cameras, size, n, e.episodes,
-                             spec.horizon, e.workers, "checkpoint"):  # fmt: skip
+    envs.check_cameras(params.backend, robot, cameras, f"{policies}: the policy's cameras")
+    inputs = policy_inputs(checkpoints, params.train.obs_keys, spec.observation_dims)
+    for line in rollout_plan(f"evaluate {name}", inputs, cameras, size, len(checkpoints.paths),
+                             e.episodes, spec.horizon, e.workers, "checkpoint"):  # fmt: skip
         print(line)
     job = EvalJob(
         make_env=functools.partial(
@@ -108,19 +106,7 @@ def run(args: argparse.Namespace) -> None:
         make_cameras=camera_renderer(params, robot, cameras, size),
     )
     per_run, wall = evaluate_checkpoints(job, checkpoints, seeds, executor, f"evaluate {name}")
-    metrics = evaluation_metrics(per_run)
-    metrics.update(
-        data_run_id=checkpoints.data_run_id,
-        episodes=e.episodes,
-        every_epochs=e.every_epochs,
-        horizon=spec.horizon,
-        wall_seconds=wall,
-        seconds_per_episode=wall / (len(checkpoints.paths) * e.episodes),
-        workers=e.workers,
-        executor=e.executor,
-    )
-    if cameras:  # an image policy's (low-dim policies' metrics keep their keys)
-        metrics.update(cameras=list(cameras), image_size=list(size))
+    metrics = evaluation_metrics(per_run) | run_metrics(checkpoints, e, spec.horizon, wall)
     with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
         write_success_rates(tmp_plot, per_run)
         identity = metrics_identity(

@@ -138,6 +138,10 @@ def run(args: argparse.Namespace) -> None:
         for p in todo
     ]
     side_by_side = min(t.workers, len(todo) * len(prof.seeds))
+    if prof.cameras:
+        # an image training uses both cores (its threads), and side by side each process
+        # would get its own copy of the images (~5 GB for 1000 StackCube demos)
+        side_by_side = 1
     # every policy's checkpoints, curve and metrics are written aside and renamed together
     # when all have trained, checkpoints last
     outputs = [p.plot for p in todo] + [p.metrics for p in todo] + [p.out for p in todo]
