@@ -147,7 +147,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         params = yaml.safe_load((REPO / "params.yaml").read_text())
-        cameras = [k.removesuffix("_image") for k in keys]
+        # our camera names: robomimic calls the wrist camera robot0_eye_in_hand (the export)
+        cameras = [k.removesuffix("_image").removeprefix("robot0_") for k in keys]
         params["observe"] |= {"cameras": cameras, "height": 84, "width": 84,
                               "episodes": a.episodes}  # fmt: skip
         params["export"]["formats"] = ["robomimic"]

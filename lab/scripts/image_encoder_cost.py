@@ -1,0 +1,65 @@
+"""Seconds per gradient step of the image BC-RNN (mimicgen_pipe.policy, two 84x84 cameras,
+the robot's 9 low-dim values, seq_len 10) for a few encoder widths, LSTM sizes and batch
+sizes, on random images and actions: forward, backward and Adam, the pixel shift included.
+Prints one line per size; the median of steps 3-8.
+
+    .venv/bin/python lab/scripts/image_encoder_cost.py --threads 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+from mimicgen_pipe.policy import BCRNN, PolicyConfig, nll_loss
+from mimicgen_pipe.training_setup import shift_images
+
+SIZES = [  # (channels, LSTM hidden, batch)
+    (32, 400, 16),
+    (32, 100, 16),
+    (16, 400, 16),
+    (16, 100, 16),
+    (32, 400, 32),
+    (32, 100, 8),
+]
+
+
+def seconds_per_step(channels: int, hidden: int, batch: int, steps: int = 8) -> float:
+    config = PolicyConfig(
+        ("eef_pos", "eef_quat", "gripper_qpos"), (3, 4, 2), 7, hidden=hidden,
+        image_keys=("agentview_image", "eye_in_hand_image"), channels=channels,
+    )  # fmt: skip
+    torch.manual_seed(0)
+    model = BCRNN(config)
+    opt = torch.optim.Adam(model.parameters(), 1e-3)
+    gen = torch.Generator().manual_seed(0)
+    images = torch.randint(0, 256, (batch, 10, 2, 84, 84, 3), dtype=torch.uint8)
+    obs, actions = torch.randn(batch, 10, 9), torch.rand(batch, 10, 7) * 2 - 1
+    times = []
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        frames = shift_images(images.view(-1, 84, 84, 3), (8, 8), gen).view(images.shape)
+        loss = nll_loss(model, obs, actions, frames)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times[2:]))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--threads", type=int, default=2, help="torch threads")
+    a = ap.parse_args()
+    torch.set_num_threads(a.threads)
+    for channels, hidden, batch in SIZES:
+        s = seconds_per_step(channels, hidden, batch)
+        print(f"threads {a.threads} channels {channels} hidden {hidden} batch {batch}: "
+              f"{s:.3f} s/step")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
