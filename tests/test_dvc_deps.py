@@ -5,6 +5,7 @@ from, so that editing a file re-runs the stages that import it, and only those."
 from __future__ import annotations
 
 import importlib.util
+import re
 import shutil
 import subprocess
 import sys
@@ -87,24 +88,39 @@ def test_a_registry_load_depends_on_every_module_of_its_package(tmp_path):
         assert module in found
 
 
+def _bases(task_file: str) -> set[str]:
+    """The task files a task file imports (a task made from another, e.g.
+    peg_insertion_square from peg_insertion)."""
+    text = (REPO / task_file).read_text()
+    folder = Path(task_file).parent
+    found = re.findall(rf"^from {re.escape('.'.join(folder.parts))}\.(\w+) import", text, re.M)
+    return {str(folder / f"{name}.py") for name in found}
+
+
 def test_a_task_file_is_in_its_own_stages_manifests_only():
-    """Editing one task's file re-runs that task's stages, not every task's."""
+    """Editing one task's file re-runs that task's stages and those of tasks made from it,
+    not every task's."""
     for path, files in manifest_files().items():
         tasks = {f for f in files if "/tasks/" in f and not f.endswith("__init__.py")}
+        own = [f for f in tasks if Path(f).stem == path.stem]
         if path.stem in ("report_suite", "report_transit"):  # read metrics and specs by name
             assert not tasks, path
         elif path.parent.name != "code_deps":  # <stage>/<task>.txt
-            assert len(tasks) == 1 and Path(tasks.pop()).stem == path.stem, path
+            assert len(own) == 1 and tasks == {own[0], *_bases(own[0])}, (path, tasks)
         else:
-            assert len(tasks) == 1, (path, tasks)
-    # one task of the suite: its stages (and the dataset-size stages, which run it) only
+            assert len(tasks - set().union(*map(_bases, tasks))) == 1, (path, tasks)
+    # one task of the suite: its stages, those of the task made from it, and the
+    # dataset-size stages, which run it
     edited = rerun_by_edit("envs/maniskill/tasks/peg_insertion.py")
     scaling = yaml.safe_load((REPO / "suite/params.yaml").read_text())["suite"]["scaling"]["task"]
     assert scaling == "peg_insertion"
     assert edited and all(
-        s.startswith("suite/") and ("/peg_insertion.txt" in s or "_scaling.txt" in s)
+        s.startswith("suite/")
+        and Path(s).name in ("peg_insertion.txt", "peg_insertion_square.txt")
+        or "_scaling.txt" in s
         for s in edited
     ), sorted(edited)
+    assert any(s.endswith("/peg_insertion_square.txt") for s in edited)
 
 
 def test_an_exporter_edit_reruns_export_stages_only():
