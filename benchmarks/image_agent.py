@@ -114,7 +114,7 @@ def cpu_image_costs(
     if evaluated["success_rate_max"] > 0:
         raise RuntimeError("the untrained policy succeeded: its episode ran short of the horizon")
     rollout_step = evaluated["seconds_per_episode"] / evaluated["horizon"]
-    total_steps = params["train"]["cpu_image"]["epochs"] * profile["steps_per_epoch"]
+    total_steps = profile["epochs"] * profile["steps_per_epoch"]
     rollout_episodes = params["evaluate"]["episodes"]
     return {
         "cpu_image_channels": profile["channels"],

@@ -105,9 +105,11 @@ class ImageEncoder(nn.Module):
             nn.ReLU(),
             nn.Conv2d(c, keypoints, 1),
         )
-        h, w = height, width
-        for kernel, stride in ((5, 2), (3, 2), (3, 1)):
-            h, w = (h - kernel) // stride + 1, (w - kernel) // stride + 1
+        h, w = height, width  # the keypoint maps' size, through each convolution
+        for conv in self.conv:
+            if isinstance(conv, nn.Conv2d):
+                (kh, kw), (sh, sw) = conv.kernel_size, conv.stride
+                h, w = (h - kh) // sh + 1, (w - kw) // sw + 1
         if h < 1 or w < 1:
             raise ValueError(f"images of {height}x{width} px are too small for the encoder")
         ys, xs = torch.meshgrid(torch.linspace(-1, 1, h), torch.linspace(-1, 1, w), indexing="ij")

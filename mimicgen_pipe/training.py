@@ -130,7 +130,7 @@ def load_training_data(
             f"{view.path}: observation keys {missing} not in the store "
             f"(data/obs/ has: {', '.join(available) or 'nothing'})"
         )
-    check_cameras(view, cameras, image_size)
+    check_images(view, cameras, image_size)
     if "success" in view.episode_keys:
         success = np.asarray(view.episode_field("success"), bool)
     else:
@@ -166,7 +166,7 @@ def load_training_data(
     )
 
 
-def check_cameras(view: StoreView, cameras: Sequence[str], image_size: tuple[int, int]) -> None:
+def check_images(view: StoreView, cameras: Sequence[str], image_size: tuple[int, int]) -> None:
     """InputError naming the store unless it holds images of every camera of ``cameras``
     (an image policy's), each ``image_size`` (height, width) [px]."""
     from mimicgen_pipe.store import store_cameras
