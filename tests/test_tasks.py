@@ -4,6 +4,7 @@ coverage bins. Task files are found by name, as the stages find them."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -169,3 +170,58 @@ def test_a_task_with_geometry_of_its_own_has_its_own_env_and_leaves_its_base_as_
     finally:
         square.close()
         stock.close()
+
+
+def test_stack_tower_counts_a_cube_on_another_only_at_one_cube_height():
+    """stack_tower's "on" test (StackCube-v1's): centres within the half diagonal + 5 mm in
+    xy and 4 cm ± 5 mm apart in z; A beside B (the pyramid's first step) is not on it."""
+    from envs.maniskill.tasks.stack_tower import HALF, _signals, on
+
+    b = np.array([0.05, -0.02, HALF], np.float32)
+    up = np.array([0.0, 0.0, 2 * HALF], np.float32)
+    assert on(b + up, b) and on(b + up + [0.03, 0.0, 0.004], b)
+    assert not on(b + up + [0.035, 0.0, 0.0], b)  # past the half diagonal + 5 mm
+    assert not on(b + [2 * HALF + 0.003, 0.0, 0.0], b)  # beside, on the table
+    assert not on(b + 2 * up, b) and not on(b, b + up)  # one cube too high; below it
+    p = {"cubeA": b + up, "cubeB": b, "cubeC": b + 2 * up}
+    free = {"cubeA": False, "cubeC": False}
+    assert _signals(p, free)["cubeA_on_cubeB"]
+    assert not _signals(p, free | {"cubeA": True})["cubeA_on_cubeB"]  # still held
+
+
+@pytest.mark.sim
+def test_stack_tower_reports_its_own_success_in_the_pyramids_scene():
+    """stack_tower (own_success) has an env of its own beside stack_pyramid's in the same
+    process, its demonstrator records there, and that env's success is the tower's: cubes
+    set by hand as a pyramid (A beside B, C on both) fail it and pass stack_pyramid's test,
+    which stack_pyramid keeps; as a tower they pass it."""
+    from mani_skill.utils.structs.pose import Pose
+
+    from envs.maniskill.source import demo_env_id
+    from envs.maniskill.tasks.stack_tower import HALF
+
+    up, aside = np.array([0, 0, 2 * HALF], np.float32), np.array([2 * HALF + 0.003, 0, 0])
+    arrangements = {"tower": (up, 2 * up), "pyramid": (aside, aside / 2 + up)}
+    tower, pyramid = (envs.make_env("maniskill", t) for t in ("stack_tower", "stack_pyramid"))
+    try:
+        assert tower.task.env_id == "MimicGenstack_tower-StackPyramid-v1"
+        assert pyramid.task.env_id == "MimicGenStackPyramid-v1"
+        assert demo_env_id(tower.task) == tower.task.env_id
+        results = {}
+        for (name, e), (shape, (a, c)) in itertools.product(
+            (("tower", tower), ("pyramid", pyramid)), arrangements.items()
+        ):
+            e.reset(seed=3, variant="D0")
+            u = e.unwrapped
+            b = u.cubeB.pose.p[0].numpy()
+            q = np.array([1, 0, 0, 0], np.float32)[None]
+            u.cubeB.set_pose(Pose.create_from_pq(p=b[None], q=q))
+            for cube, offset in ((u.cubeA, a), (u.cubeC, c)):
+                cube.set_pose(Pose.create_from_pq(p=(b + offset)[None].astype(np.float32), q=q))
+            results[name, shape] = (bool(u.evaluate()["success"][0]), e.task.evaluate(u)["success"])
+        assert results[("tower", "tower")] == (True, True)
+        assert results[("tower", "pyramid")] == (False, False)
+        assert results[("pyramid", "pyramid")] == (True, True)
+    finally:
+        tower.close()
+        pyramid.close()

@@ -92,10 +92,11 @@ class VariantResets:
             (self.task.initialize or redraw_planar)(self, env_idx, variants[self.variant])
 
     def evaluate(self) -> dict:
-        """ManiSkill's evaluation; for a task with a scene of its own (``load_scene``), its
-        success is the task's (``task.evaluate``), not the base env's task's."""
+        """ManiSkill's evaluation; for a task with a scene or a success test of its own
+        (``task_success``), its success is the task's (``task.evaluate``), not the base
+        env's task's."""
         info = super().evaluate()
-        if self.task.load_scene is not None:
+        if self.task.task_success:
             info["success"] = torch.tensor([self.task.evaluate(self)["success"]])
         return info
 

@@ -245,10 +245,10 @@ def run_motion_planner(
 
 
 def demo_env_id(task: ManiSkillTask) -> str:
-    """The env the demonstrator records in: the task's own (its scene, its D0 reset) for a
-    demonstrator of the task's own in a scene of the task's own, or for geometry of its own
-    (env_attributes), else ManiSkill's env."""
-    if task.env_attributes or (callable(task.planner) and task.load_scene is not None):
+    """The env the demonstrator records in: the task's own (its scene, its D0 reset, its
+    success) for a demonstrator of the task's own in a scene or with a success test of the
+    task's own, or for geometry of its own (env_attributes), else ManiSkill's env."""
+    if task.env_attributes or (callable(task.planner) and task.task_success):
         from envs.maniskill.env import ManiSkillEnv
 
         return ManiSkillEnv.env_id_for(task)

@@ -110,6 +110,11 @@ class ManiSkillTask:
         for geometry ManiSkill fixes as a class constant (e.g. PegInsertionSide's hole
         clearance ``_clearance`` [m]); the task's env then has an id of its own, and its
         source demos are planned in it.
+    own_success: the task's success test (``evaluate``) is not its base env's, for a task
+        with another goal in the base env's scene (e.g. stack_tower's tower in
+        StackPyramid-v1's cubes); the task's env then has an id of its own, and reports the
+        task's success where ManiSkill's env reports its own (a task with ``load_scene``
+        always does).
     """
 
     spec: TaskSpec
@@ -132,6 +137,7 @@ class ManiSkillTask:
     demonstrator: Callable[[Any, int], Any] | None = None
     video_view: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     env_attributes: dict[str, Any] = field(default_factory=dict)
+    own_success: bool = False
 
     def __post_init__(self) -> None:
         if self.frames and self.rebuild_seed != CREATION_SEED:
@@ -141,12 +147,18 @@ class ManiSkillTask:
             )
 
     @property
-    def own_scene(self) -> bool:
-        """Whether the task's scene is not its base env's: actors of its own, or geometry."""
-        return self.load_scene is not None or bool(self.env_attributes)
+    def task_success(self) -> bool:
+        """Whether the task's env reports the task's success, not its base env's."""
+        return self.load_scene is not None or self.own_success
+
+    @property
+    def own_env(self) -> bool:
+        """Whether the task's env is not its base env's: actors of its own, geometry, or a
+        success test."""
+        return self.task_success or bool(self.env_attributes)
 
     @property
     def env_id(self) -> str:
-        if self.own_scene:
+        if self.own_env:
             return f"MimicGen{self.spec.name}-{self.base_env_id}"
         return f"MimicGen{self.base_env_id}"

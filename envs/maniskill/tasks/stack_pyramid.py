@@ -71,66 +71,82 @@ def evaluate(env) -> dict[str, bool]:
     return out
 
 
-def solve(env, seed: int | None = None):
-    """The source demonstrator: one planned demo on ManiSkill's ``pd_joint_pos`` env from
-    reset ``seed``; ManiSkill's solution convention (the last step's result, or -1 where a
-    motion cannot be planned)."""
-    import sapien
-    from mani_skill.examples.motionplanning.base_motionplanner.utils import (
-        compute_grasp_info_by_obb,
-        get_actor_obb,
-    )
+def panda_planner(env, seed: int | None):
+    """``env`` reset to ``seed`` and ManiSkill's Panda motion planner on it."""
     from mani_skill.examples.motionplanning.panda.motionplanner import (
         PandaArmMotionPlanningSolver,
     )
-    from transforms3d.euler import euler2quat
 
     env.reset(seed=seed)
     u = env.unwrapped
-    planner = PandaArmMotionPlanningSolver(
+    return PandaArmMotionPlanningSolver(
         env,
         vis=False,
         base_pose=u.agent.robot.pose,
         visualize_target_grasp_pose=False,
         print_env_info=False,
     )
+
+
+def grasp(u, planner, actor) -> bool:
+    """Grasp the cube ``actor`` from above and lift it by LIFT; False where a motion cannot
+    be planned or the fingers end up without it."""
+    import sapien
+    from mani_skill.examples.motionplanning.base_motionplanner.utils import (
+        compute_grasp_info_by_obb,
+        get_actor_obb,
+    )
+
     down = np.array([0.0, 0.0, -1.0])
-
-    def grasp(actor) -> bool:
-        closing = u.agent.tcp.pose.to_transformation_matrix()[0, :3, 1].cpu().numpy()
-        info = compute_grasp_info_by_obb(
-            get_actor_obb(actor), approaching=down, target_closing=closing, depth=0.025
-        )
-        pose = u.agent.build_grasp_pose(down, info["closing"], info["center"])
-        for target in (pose * sapien.Pose([0, 0, -0.05]), pose):
-            if planner.move_to_pose_with_screw(target) == -1:
-                return False
-        planner.close_gripper()
-        # a cube pressed against another may slip the fingers: no grasp, no demo
-        if not u.agent.is_grasping(actor).item():
+    closing = u.agent.tcp.pose.to_transformation_matrix()[0, :3, 1].cpu().numpy()
+    info = compute_grasp_info_by_obb(
+        get_actor_obb(actor), approaching=down, target_closing=closing, depth=0.025
+    )
+    pose = u.agent.build_grasp_pose(down, info["closing"], info["center"])
+    for target in (pose * sapien.Pose([0, 0, -0.05]), pose):
+        if planner.move_to_pose_with_screw(target) == -1:
             return False
-        # lifted well clear before the next subtask, whose motion is carried in another frame
-        return planner.move_to_pose_with_screw(sapien.Pose([0, 0, LIFT]) * pose) != -1
+    planner.close_gripper()
+    # a cube pressed against another may slip the fingers: no grasp, no demo
+    if not u.agent.is_grasping(actor).item():
+        return False
+    # lifted well clear before the next subtask, whose motion is carried in another frame
+    return planner.move_to_pose_with_screw(sapien.Pose([0, 0, LIFT]) * pose) != -1
 
-    def place(actor, p: np.ndarray, q: np.ndarray):
-        """The held ``actor`` put down at ``p`` with the yaw of ``q`` (world), turned by the
-        multiple of 90 deg nearest to the hand's present orientation, then let go."""
-        tcp = u.agent.tcp.pose.sp
-        to_tcp = actor.pose.sp.inv() * tcp
-        goals = [
-            sapien.Pose(p, q) * sapien.Pose(q=euler2quat(0, 0, k * np.pi / 2)) * to_tcp
-            for k in range(4)
-        ]
-        goal = max(goals, key=lambda g: abs(float(np.dot(g.q, tcp.q))))
-        for target in (
-            sapien.Pose(goal.p + [0, 0, 0.05], goal.q),
-            sapien.Pose(goal.p + [0, 0, 0.003], goal.q),
-        ):
-            if planner.move_to_pose_with_screw(target) == -1:
-                return -1
-        planner.open_gripper()
-        return planner.move_to_pose_with_screw(sapien.Pose([0, 0, LIFT]) * u.agent.tcp.pose.sp)
 
+def place(u, planner, actor, p: np.ndarray, q: np.ndarray):
+    """The held ``actor`` put down with its centre at ``p`` [m] and the yaw of ``q`` (wxyz),
+    both world frame, turned by the multiple of 90 deg nearest to the hand's present
+    orientation, then let go and the hand raised by LIFT; -1 where a motion cannot be
+    planned."""
+    import sapien
+    from transforms3d.euler import euler2quat
+
+    tcp = u.agent.tcp.pose.sp
+    to_tcp = actor.pose.sp.inv() * tcp
+    goals = [
+        sapien.Pose(p, q) * sapien.Pose(q=euler2quat(0, 0, k * np.pi / 2)) * to_tcp
+        for k in range(4)
+    ]
+    goal = max(goals, key=lambda g: abs(float(np.dot(g.q, tcp.q))))
+    for target in (
+        sapien.Pose(goal.p + [0, 0, 0.05], goal.q),
+        sapien.Pose(goal.p + [0, 0, 0.003], goal.q),
+    ):
+        if planner.move_to_pose_with_screw(target) == -1:
+            return -1
+    planner.open_gripper()
+    return planner.move_to_pose_with_screw(sapien.Pose([0, 0, LIFT]) * u.agent.tcp.pose.sp)
+
+
+def solve(env, seed: int | None = None):
+    """The source demonstrator: one planned demo on ManiSkill's ``pd_joint_pos`` env from
+    reset ``seed``; ManiSkill's solution convention (the last step's result, or -1 where a
+    motion cannot be planned)."""
+    import sapien
+
+    planner = panda_planner(env, seed)
+    u = env.unwrapped
     a, b, c = u.cubeA.pose.sp, u.cubeB.pose.sp, u.cubeC.pose.sp
     axes = sapien.Pose(q=b.q).to_transformation_matrix()[:3, :2].T
     sides = sorted(
@@ -138,15 +154,17 @@ def solve(env, seed: int | None = None):
     )
     spots = [b.p + (2 * HALF + GAP) * n for n in sides]
     spots = [s for s in spots if np.linalg.norm(s[:2] - c.p[:2]) > 0.07]  # clear of C
-    if not spots or not grasp(u.cubeA) or place(u.cubeA, spots[0], b.q) == -1:
+    if not spots or not grasp(u, planner, u.cubeA):
+        return -1
+    if place(u, planner, u.cubeA, spots[0], b.q) == -1:
         return -1
     # A slid or turned on the way down: a demo C would have to fix, so none
     if np.linalg.norm(u.cubeA.pose.sp.p[:2] - spots[0][:2]) > SLACK:
         return -1
-    if not grasp(u.cubeC):
+    if not grasp(u, planner, u.cubeC):
         return -1
     a, b = u.cubeA.pose.sp, u.cubeB.pose.sp
-    res = place(u.cubeC, (a.p + b.p) / 2 + [0, 0, 2 * HALF], b.q)
+    res = place(u, planner, u.cubeC, (a.p + b.p) / 2 + [0, 0, 2 * HALF], b.q)
     planner.close()
     return res
 
