@@ -278,8 +278,11 @@ class SuiteParams:
     object_transfer: tasks also generated on their O1 variant (paper F: another object,
     the same source demos).
     policy_tasks: tasks with policies on D0 and D1 (source, D0 and D1 data; paper P.1);
-    d0_policy_tasks: tasks with policies on D0 only (source and D0 data). Both among
-    ``tasks``, none in both. scaling: the dataset-size comparison (ScalingParams)."""
+    d0_policy_tasks: tasks with policies on D0 only (source and D0 data);
+    seeded_policy_tasks: tasks with policies on D0 only, each trained with seeds
+    0..``policy_seeds``-1 (the others with the profile's seeds), for a mean ± std over seeds
+    as Table P.1's. All among ``tasks``, none in two lists. scaling: the dataset-size
+    comparison (ScalingParams)."""
 
     backend: str = "maniskill"
     tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
@@ -289,6 +292,8 @@ class SuiteParams:
     object_transfer: list[str] = field(default_factory=list)
     policy_tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
     d0_policy_tasks: list[str] = field(default_factory=list)
+    seeded_policy_tasks: list[str] = field(default_factory=list)
+    policy_seeds: int = 3
     scaling: ScalingParams = field(default_factory=ScalingParams)
 
 
@@ -340,6 +345,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "evaluate.seed": (0, 2**31 - 1),
     "pose_noise.seed": (0, 2**31 - 1),
     "train.*.seeds": (0, 2**31 - 1),  # each seed of the list
+    "suite.policy_seeds": (1, 100),  # seeds 0..N-1
     "train.num_demos": (1, 10_000_000),
     "train.val_fraction": (0.0, 0.5),
     "train.*.hidden": (1, 8192),

@@ -52,7 +52,7 @@ def check_variants(params: Params, path: str) -> None:
     policies or the scaling task is not a suite task (or, with policies, is listed twice)."""
     u = params.suite
     seen: set[str] = set()
-    for key in ("suite.policy_tasks", "suite.d0_policy_tasks"):
+    for key in ("suite.policy_tasks", "suite.d0_policy_tasks", "suite.seeded_policy_tasks"):
         for task in getattr(u, key.split(".")[1]):
             if task not in u.tasks or task in seen:
                 why = "not in suite.tasks" if task not in u.tasks else "listed twice"

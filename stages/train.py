@@ -37,6 +37,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "train.num_demos: one for every --data, or one per --data",
     )
     p.add_argument(
+        "--num-seeds",
+        type=int,
+        help="train each policy with seeds 0..N-1 (one run each), in place of "
+        "train.<profile>.seeds",
+    )
+    p.add_argument(
         "--store",
         nargs="+",
         help="store to train on, one per --data (default: from --data, see layout)",
@@ -117,11 +123,21 @@ def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
     ]
 
 
+def with_seeds(params: Params, args: argparse.Namespace) -> Params:
+    """``params`` with seeds 0..N-1 of --num-seeds, where given, as the active profile's
+    training seeds."""
+    if args.num_seeds is None:
+        return params
+    if why := range_error("suite.policy_seeds", args.num_seeds):
+        raise InputError(f"--num-seeds {args.num_seeds}: {why}")
+    t = params.train
+    profile = dataclasses.replace(t.active, seeds=list(range(args.num_seeds)))
+    return dataclasses.replace(params, train=dataclasses.replace(t, **{t.profile: profile}))
+
+
 def run(args: argparse.Namespace) -> None:
-    params = stage_params(args)
+    params = with_seeds(stage_params(args), args)
     t, prof = params.train, params.train.active
-    if not prof.seeds:
-        raise InputError(f"{args.params}: train.{t.profile}.seeds: expected at least one seed")
     todo = policies(args, params)
     # fails at once if another run writes them, or if they would replace anything else
     claim(

@@ -148,6 +148,8 @@ def test_a_suite_task_with_policies_must_be_a_suite_task_listed_once(tmp_path):
          "is not in suite.tasks"),
         ("policy_tasks: [place_sphere], d0_policy_tasks: [place_sphere]",
          "suite.d0_policy_tasks: 'place_sphere' is listed twice"),
+        ("policy_tasks: [pull_cube_tool], seeded_policy_tasks: [place_sphere, pull_cube_tool]",
+         "suite.seeded_policy_tasks: 'pull_cube_tool' is listed twice"),
     ):  # fmt: skip
         (tmp_path / "params.yaml").write_text(base + extra + "}\n")
         res = cli("parse", cwd=tmp_path, check=False)

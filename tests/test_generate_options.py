@@ -87,3 +87,22 @@ def test_train_num_demos_is_one_count_or_one_per_data(tmp_path):
     assert msg == (
         "mimicgen-pipe train: error: --num-demos: expected one count, or one per --data (2), got 3"
     )
+
+
+def test_train_num_seeds_stands_in_for_the_profiles_seeds(tmp_path):
+    import argparse
+
+    from mimicgen_pipe.params import load_params
+    from stages.train import with_seeds
+
+    (tmp_path / "params.yaml").write_text("task: stack_cube\ntrain: {cpu: {seeds: [7]}}\n")
+    params = load_params(tmp_path / "params.yaml")
+    seeded = with_seeds(params, argparse.Namespace(num_seeds=3))
+    assert seeded.train.cpu.seeds == [0, 1, 2] and params.train.cpu.seeds == [7]
+    assert seeded.train.paper == params.train.paper  # only the active profile's
+    assert with_seeds(params, argparse.Namespace(num_seeds=None)) == params
+    msg = run_bad(tmp_path, "train", "--data", "D0", "--num-seeds", "0")
+    assert msg == (
+        "mimicgen-pipe train: error: --num-seeds 0: expected a value in [1, 100] (the range of "
+        "suite.policy_seeds), got 0"
+    )

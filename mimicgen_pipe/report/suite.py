@@ -9,7 +9,7 @@ from typing import Any
 from mimicgen_pipe.metrics import Metrics
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
-from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_delta
+from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_delta, fmt_pm
 from mimicgen_pipe.report.inputs import (
     OTHER_RUN,
     MetricsSet,
@@ -206,7 +206,9 @@ def suite_policy_blocks(
         Text(
             "BC-RNN (cpu profile) trained on each task's 10 source demos and on the demos "
             f"generated for a variant (`suite/dvc.yaml`), evaluated on that variant: {protocol}."
-            " The paper's source agents are evaluated on D0 only."
+            " One training seed each, but for `suite.seeded_policy_tasks`: mean ± std over "
+            f"their {params.suite.policy_seeds} seeds, as the paper's over 3. The paper's "
+            "source agents are evaluated on D0 only."
         ),
         Table(columns, tuple(rows)),
         *([Text(other_run_note("train/evaluate"))] if marked else []),
@@ -214,9 +216,15 @@ def suite_policy_blocks(
 
 
 def _sr(m: Metrics | None) -> str:
+    """Success rate max / last over training; mean ± std over seeds where there are several."""
     if m is None:
         return MISSING
-    return f"{fmt(m.values.get('success_rate_max'))} / {fmt(m.values.get('success_rate_last'))}"
+    v = m.values
+    several = (v.get("seeds") or 1) > 1
+    return " / ".join(
+        fmt_pm(v.get(f"success_rate_{k}"), v.get(f"success_rate_{k}_std") if several else None)
+        for k in ("max", "last")
+    )
 
 
 LONG = 5  # subtasks from which a task is long (the paper's long tasks have 5 to 8)
