@@ -614,6 +614,40 @@ def test_suite_policy_table_sets_source_beside_generated_and_the_paper():
     )  # fmt: skip
 
 
+def test_paper_geometry_tasks_meet_p1_minus_5_with_their_spread_over_seeds():
+    """A task of suite.seeded_policy_tasks gets a row with its D0/D1 DGR beside O.1 and its
+    D0 policies' mean ± std over seeds beside P.1, marked by whether it reaches P.1 − 5; one
+    seed shows no spread, and a task outside the list gets no row."""
+    specs = [envs.task_spec("maniskill", t) for t in ("stack_tower", "peg_insertion_square")]
+    files = [
+        gen("stack_tower", "D0", 70.0, purpose="dgr"),
+        m("evaluate", "stack_tower", "D0", data="D0", success_rate_max=84.0,
+          success_rate_max_std=2.5, seeds=3),
+        gen("peg_insertion_square", "D1", 87.5, purpose="dgr"),
+        m("evaluate", "peg_insertion_square", "D0", data="D0", success_rate_max=96.0,
+          success_rate_max_std=0.0, seeds=1),
+    ]  # fmt: skip
+    params = suite_params(["stack_tower", "peg_insertion_square"])
+    params = replace(params, suite=replace(params.suite, seeded_policy_tasks=["stack_tower",
+                     "peg_insertion_square"]))  # fmt: skip
+    paper = load_paper_results(PAPER)
+    blocks = suite.paper_geometry_blocks(params, specs, MetricsSet(tuple(files)), paper)
+    assert blocks[0] == Heading(2, "The paper's own geometry")
+    assert blocks[-1].rows == (
+        ("`stack_tower`", "Stack Three", "70.0 / 71.3", "missing / 68.9", "84.0 ± 2.5 (3 seeds)",
+         "88.0 ± 1.6 (Table P.1, Stack Three D0)", "yes (≥ 83.0)"),
+        ("`peg_insertion_square`", "Square", "missing / 73.7", "87.5 / 48.9", "96.0 (1 seed)",
+         "98.0 ± 1.6 (Table P.1, Square D0)", "yes (≥ 93.0)"),
+    )  # fmt: skip
+    files[-1] = m("evaluate", "peg_insertion_square", "D0", data="D0", success_rate_max=92.0,
+                  seeds=3, success_rate_max_std=1.0)  # fmt: skip
+    rows = suite.paper_geometry_blocks(params, specs, MetricsSet(tuple(files)), paper)[-1].rows
+    assert rows[1][4:] == ("92.0 ± 1.0 (3 seeds)", "98.0 ± 1.6 (Table P.1, Square D0)",
+                           "no (≥ 93.0)")  # fmt: skip
+    none = replace(params, suite=replace(params.suite, seeded_policy_tasks=[]))
+    assert suite.paper_geometry_blocks(none, specs, MetricsSet(tuple(files)), paper) == []
+
+
 def test_long_tasks_sit_beside_the_papers_kitchen_and_coffee_preparation():
     """A suite task of five or more subtasks gets a row in the long-task table, with its DGR
     per variant and its D0 policies, under the paper's long tasks; a short task gets none."""

@@ -84,6 +84,7 @@ def build_suite_report(
         *suite.suite_dgr_blocks(params, specs, ms, paper),
         *suite.object_transfer_blocks(params, specs, ms, paper),
         *suite.suite_policy_blocks(params, specs, ms, paper),
+        *suite.paper_geometry_blocks(params, specs, ms, paper),
         *profile_blocks(params, *profiles, paper),
         *suite.long_task_blocks(params, specs, ms, paper),
         *suite.two_arm_blocks(params, specs, ms),

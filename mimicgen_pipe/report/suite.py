@@ -215,16 +215,75 @@ def suite_policy_blocks(
     ]
 
 
-def _sr(m: Metrics | None) -> str:
-    """Success rate max / last over training; mean ± std over seeds where there are several."""
-    if m is None:
-        return MISSING
+def _rate(m: Metrics, kind: str) -> str:
+    """Success rate ``kind`` (max or last over training); mean ± std over seeds where there
+    are several."""
     v = m.values
-    several = (v.get("seeds") or 1) > 1
-    return " / ".join(
-        fmt_pm(v.get(f"success_rate_{k}"), v.get(f"success_rate_{k}_std") if several else None)
-        for k in ("max", "last")
-    )
+    std = v.get(f"success_rate_{kind}_std") if (v.get("seeds") or 1) > 1 else None
+    return fmt_pm(v.get(f"success_rate_{kind}"), std)
+
+
+def _count(n: Any, what: str) -> str:
+    return f"{fmt(n)} {what}" + ("" if n == 1 else "s")
+
+
+def _sr(m: Metrics | None) -> str:
+    """Success rate max / last over training."""
+    return MISSING if m is None else f"{_rate(m, 'max')} / {_rate(m, 'last')}"
+
+
+TARGET_MARGIN = 5.0  # [points] a paper-geometry task meets the paper when SR >= P.1 - this
+
+
+def paper_geometry_blocks(
+    params: Params, specs: Sequence[TaskSpec], ms: MetricsSet, paper: PaperResults
+) -> list[Block]:
+    """The tasks of suite.seeded_policy_tasks (the paper's own geometry) in one table: DGR on
+    D0 and D1 beside Table O.1, and the generated D0 policies' success rate (max over
+    training, mean ± std over seeds) beside Table P.1's, with the target P.1 − TARGET_MARGIN."""
+    seeded = [s for s in specs if s.name in params.suite.seeded_policy_tasks]
+    if not seeded:
+        return []
+    rows = []
+    for spec in seeded:
+        dgr = []
+        for v in ("D0", "D1"):
+            ours, ref = (
+                dgr_run(ms, params, spec.name, v),
+                paper.find(table="O.1", task=spec.paper_task, variant=v, metric="dgr"),
+            )
+            dgr.append(
+                f"{fmt(ours.values['dgr']) if ours else MISSING} / "
+                f"{fmt(ref[0].value) if ref else MISSING}"
+            )
+        ev = evaluation(ms, params, spec.name, params.suite.backend, "D0", "D0")
+        ref = paper.find(table="P.1", task=spec.paper_task, data="D0", variant="D0")
+        sr = ev.values.get("success_rate_max") if ev else None
+        target = ref[0].value - TARGET_MARGIN if ref else None
+        met = MISSING if sr is None or target is None else ("yes" if sr >= target else "no")
+        rows.append(
+            (
+                f"`{spec.name}`",
+                spec.paper_task,
+                *dgr,
+                f"{_rate(ev, 'max')} ({_count(ev.values.get('seeds'), 'seed')})" if ev else MISSING,
+                ref[0].cite() if ref else MISSING,
+                f"{met} (≥ {fmt(target)})" if target is not None else MISSING,
+            )
+        )
+    columns = ("task", "paper task", "DGR D0 % ours / O.1", "DGR D1 % ours / O.1",
+               "generated D0 SR max %", "paper (P.1, D0)", "SR ≥ P.1 − 5")  # fmt: skip
+    return [
+        Heading(2, "The paper's own geometry"),
+        Text(
+            "The tasks built to the paper's geometry (`suite.seeded_policy_tasks`), where "
+            "our numbers should meet the paper's: the suite's fixed attempts on D0 and D1, "
+            "and the D0 policies trained on 1000 generated demos with "
+            f"{params.suite.policy_seeds} seeds (mean ± std of the max over training), "
+            f"beside Tables O.1 and P.1. The target is P.1 − {fmt(TARGET_MARGIN)} points."
+        ),
+        Table(columns, tuple(rows)),
+    ]
 
 
 LONG = 5  # subtasks from which a task is long (the paper's long tasks have 5 to 8)
