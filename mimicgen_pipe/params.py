@@ -279,7 +279,7 @@ class SuiteParams:
     the same source demos).
     policy_tasks: tasks with policies on D0 and D1 (source, D0 and D1 data; paper P.1);
     d0_policy_tasks: tasks with policies on D0 only (source and D0 data);
-    seeded_policy_tasks: tasks with policies on D0 only, each trained with seeds
+    seeded_policy_tasks: tasks with one policy, on D0 data, trained with seeds
     0..``policy_seeds``-1 (the others with the profile's seeds), for a mean ± std over seeds
     as Table P.1's. All among ``tasks``, none in two lists. scaling: the dataset-size
     comparison (ScalingParams)."""

@@ -206,9 +206,9 @@ def suite_policy_blocks(
         Text(
             "BC-RNN (cpu profile) trained on each task's 10 source demos and on the demos "
             f"generated for a variant (`suite/dvc.yaml`), evaluated on that variant: {protocol}."
-            " One training seed each, but for `suite.seeded_policy_tasks`: mean ± std over "
-            f"their {params.suite.policy_seeds} seeds, as the paper's over 3. The paper's "
-            "source agents are evaluated on D0 only."
+            " One training seed each, but for `suite.seeded_policy_tasks`: a D0 policy only, "
+            f"mean ± std over its {params.suite.policy_seeds} seeds as the paper's over 3. The "
+            "paper's source agents are evaluated on D0 only."
         ),
         Table(columns, tuple(rows)),
         *([Text(other_run_note("train/evaluate"))] if marked else []),

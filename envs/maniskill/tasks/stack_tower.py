@@ -67,8 +67,7 @@ def evaluate(env) -> dict[str, bool]:
     grasped = {o: lean.is_grasping(env, getattr(env, o)) for o in ("cubeA", "cubeC")}
     out = _signals(p, grasped)
     free = all(
-        lean.is_static(getattr(env, o), lin_thresh=STATIC_SPEED, ang_thresh=0.5)
-        and not grasped[o]
+        lean.is_static(getattr(env, o), lin_thresh=STATIC_SPEED, ang_thresh=0.5) and not grasped[o]
         for o in ("cubeA", "cubeC")
     )
     out["success"] = on(p["cubeA"], p["cubeB"]) and on(p["cubeC"], p["cubeA"]) and free
