@@ -278,7 +278,7 @@ def paper_geometry_blocks(
         Text(
             "The tasks built to the paper's geometry (`suite.seeded_policy_tasks`), where "
             "our numbers should meet the paper's: the suite's fixed attempts on D0 and D1, "
-            "and the D0 policies trained on 1000 generated demos with "
+            f"and the D0 policies trained on {params.train.num_demos} generated demos with "
             f"{params.suite.policy_seeds} seeds (mean ± std of the max over training), "
             f"beside Tables O.1 and P.1. The target is P.1 − {fmt(TARGET_MARGIN)} points."
         ),
