@@ -33,6 +33,7 @@ STAGES = {
     "train": "train BC-RNN policies on the source demos or a generated dataset",
     "evaluate": "roll out a training run's checkpoints in one reset variant",
     "evaluate_external": "roll out a policy trained elsewhere (robomimic, LeRobot) likewise",
+    "train_robomimic": "robomimic's own BC-RNN on our robomimic export, at our profile's size",
     "export": "a generated store as robomimic HDF5, LeRobot and ManiSkill trajectories",
     "render": "MP4s and GIFs of the first kept and failed generated episodes, captioned",
     "observe": "camera images of a store's episodes, rendered from their stored states",

@@ -281,8 +281,11 @@ class SuiteParams:
     d0_policy_tasks: tasks with policies on D0 only (source and D0 data);
     seeded_policy_tasks: tasks with one policy, on D0 data, trained with seeds
     0..``policy_seeds``-1 (the others with the profile's seeds), for a mean ± std over seeds
-    as Table P.1's. All among ``tasks``, none in two lists. scaling: the dataset-size
-    comparison (ScalingParams)."""
+    as Table P.1's. All among ``tasks``, none in two lists. robomimic_tasks: tasks, each
+    with D0 policy data (in one of those lists), on whose 1000 D0 demos robomimic 0.3.0's
+    own BC-RNN also trains at our profile's size, with and without its observation
+    normalisation (an outside learner beside ours). scaling: the dataset-size comparison
+    (ScalingParams)."""
 
     backend: str = "maniskill"
     tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
@@ -294,6 +297,7 @@ class SuiteParams:
     d0_policy_tasks: list[str] = field(default_factory=list)
     seeded_policy_tasks: list[str] = field(default_factory=list)
     policy_seeds: int = 3
+    robomimic_tasks: list[str] = field(default_factory=list)
     scaling: ScalingParams = field(default_factory=ScalingParams)
 
 

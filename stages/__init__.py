@@ -49,7 +49,8 @@ def check_variants(params: Params, path: str) -> None:
     """InputError naming the params key when the main task (generate.variants), a
     robot-transfer task (transfer.variants), a suite task (suite.variants) or the scaling
     task (suite.scaling.variant) lacks one of the listed reset variants, or a suite task with
-    policies or the scaling task is not a suite task (or, with policies, is listed twice)."""
+    policies or the scaling task is not a suite task (or, with policies, is listed twice),
+    or a task of suite.robomimic_tasks has no D0 policy data."""
     u = params.suite
     seen: set[str] = set()
     for key in ("suite.policy_tasks", "suite.d0_policy_tasks", "suite.seeded_policy_tasks"):
@@ -58,6 +59,11 @@ def check_variants(params: Params, path: str) -> None:
                 why = "not in suite.tasks" if task not in u.tasks else "listed twice"
                 raise InputError(f"{path}: {key}: {task!r} is {why}")
             seen.add(task)
+    for task in u.robomimic_tasks:
+        if task not in seen:
+            raise InputError(f"{path}: suite.robomimic_tasks: {task!r} has no D0 policy data "
+                             "(it is in none of suite.policy_tasks, d0_policy_tasks and "
+                             "seeded_policy_tasks)")  # fmt: skip
     scaling = u.scaling
     if scaling.task is not None and scaling.task not in u.tasks:
         raise InputError(f"{path}: suite.scaling.task: {scaling.task!r} is not in suite.tasks")

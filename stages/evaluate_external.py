@@ -1,7 +1,8 @@
 """evaluate_external: roll out a policy trained elsewhere (robomimic or LeRobot, on our
 export) in one reset variant, from the scenes the evaluate stage rolls our checkpoints out
 from, with the same metrics. Its framework runs in its own Python (mimicgen_pipe.external).
-No pipeline stage: a command for policies trained outside it."""
+Given several checkpoints of one training run (in training order), each is rolled out on
+the same scenes, and the metrics are its max and last as for our own runs."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from pathlib import Path
 
 import envs
 from mimicgen_pipe import layout
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.evaluation import (
     EvalJob,
     Rollout,
@@ -20,7 +22,7 @@ from mimicgen_pipe.evaluation import (
     rollout_plan,
     success_rate,
 )
-from mimicgen_pipe.executors import stage_executor
+from mimicgen_pipe.executors import Executor, stage_executor
 from mimicgen_pipe.exporters import task_description
 from mimicgen_pipe.external import (
     DEFAULT_PYTHON,
@@ -51,7 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--policy",
         required=True,
-        help="robomimic:<checkpoint .pth> or lerobot:<policy directory> (its pretrained_model)",
+        nargs="+",
+        help="robomimic:<checkpoint .pth> or lerobot:<policy directory> (its pretrained_model);"
+        " several: checkpoints of one training run, in training order; robomimic:<folder>: its "
+        "model_epoch_<N>.pth by epoch",
     )
     p.add_argument(
         "--data",
@@ -78,12 +83,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def write_episodes(path: Path, rollouts: list[Rollout]) -> None:
-    """One row per episode: its reset seed, success and steps run."""
+def write_episodes(path: Path, rollouts: list[tuple[int | None, list[Rollout]]]) -> None:
+    """One row per checkpoint and episode: the checkpoint's epoch (empty where unknown), the
+    episode's reset seed, success and steps run."""
     with path.open("w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(["episode", "seed", "success", "steps"])
-        writer.writerows((i, r.seed, int(r.success), r.steps) for i, r in enumerate(rollouts))
+        writer.writerow(["epoch", "episode", "seed", "success", "steps"])
+        for epoch, runs in rollouts:
+            e = "" if epoch is None else epoch
+            writer.writerows((e, i, r.seed, int(r.success), r.steps) for i, r in enumerate(runs))
 
 
 def checkpoint_epoch(fmt: str, path: Path, label: str) -> tuple[int | None, str]:
@@ -124,55 +132,92 @@ def eval_job(
     )
 
 
+def roll_out(
+    params: Params,
+    spec: TaskSpec,
+    robot: str,
+    variant: str,
+    policies: list[PolicySpec],
+    seeds: list[int],
+    executor: Executor,
+    label: str,
+) -> tuple[list[tuple[int | None, list[Rollout]]], float, Probed, str]:
+    """Each checkpoint of one run rolled out in ``variant`` from ``seeds``, in order: (its
+    epoch, its rollouts) each; the wall time [s], what the first one reads, and the epoch's
+    unit."""
+    known = envs.backend_package(params.backend).cameras(robot)
+    env_kwargs = {"backend": params.backend, "task": params.task, "robot": robot}
+    results, wall = [], 0.0
+    for i, policy in enumerate(policies):
+        probed = probe(policy, spec.observation_dims, env_kwargs, known, spec.action_dim)
+        if i == 0:
+            first = probed
+            print_plan(label, probed, len(seeds) * len(policies), spec.horizon,
+                       params.evaluate.workers)  # fmt: skip
+        epoch, unit = checkpoint_epoch(policy.format, Path(policy.path), label)
+        job = eval_job(params, spec, robot, policy, variant, probed)
+        rollouts, seconds = evaluate_policies(job, [policy.name], seeds, executor, label)
+        results.append((epoch, rollouts[policy.name]))
+        wall += seconds
+    return results, wall, first, unit
+
+
 def run(args: argparse.Namespace) -> None:
     params = stage_params(args)
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
     check_data(params, args.data, named=False)
-    fmt, path = parse_policy(args.policy)
+    given = [
+        (fmt, checkpoint)
+        for fmt, path in map(parse_policy, args.policy)
+        for checkpoint in format_module(fmt).run_checkpoints(path)
+    ]
+    fmt = given[0][0]
+    if any(f != fmt for f, _ in given):
+        raise InputError(f"--policy: checkpoints of one run, of one format (got {fmt} and more)")
     e = params.evaluate
     episodes = e.episodes if args.episodes is None else args.episodes
     name = f"{args.data}_on_{args.variant}_{fmt}"
     default_metrics, default_plot = layout.external_evaluation_files(params.task, name)
     metrics_path = Path(args.metrics or default_metrics)
     plot_path = Path(args.plot or default_plot)
-    claim(metrics_path, plot_path, inputs=[path])  # fails at once if another run writes them
+    # fails at once if another run writes them
+    claim(metrics_path, plot_path, inputs=[path for _, path in given])
     executor = stage_executor(params, "evaluate")  # refuses unsafe Ray settings before any work
     # a policy acts with the arm its training data was recorded with
     robot = params.source.robot if args.data == "source" else params.generate.robot
     envs.check_robot(params.backend, robot)
     python = check_python(args.python or str(DEFAULT_PYTHON))
-    policy = PolicySpec(
-        fmt, str(path.resolve()), python, tuple(params.train.obs_keys), task_description(spec)
-    )
-    known = envs.backend_package(params.backend).cameras(robot)
-    env_kwargs = {"backend": params.backend, "task": params.task, "robot": robot}
-    probed = probe(policy, spec.observation_dims, env_kwargs, known, spec.action_dim)
-    job = eval_job(params, spec, robot, policy, args.variant, probed)
-    seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(episodes)]
     label = f"evaluate {name}"
-    epoch, unit = checkpoint_epoch(fmt, path, label)
-    print_plan(label, probed, episodes, spec.horizon, e.workers)
-    results, wall = evaluate_policies(job, [policy.name], seeds, executor, label)
-    rollouts = results[policy.name]
-    # in the terms of our own evaluation: one training run, one checkpoint, of its epoch
-    metrics = evaluation_metrics({0: [(epoch, success_rate(rollouts))]})
+    seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(episodes)]
+    policies = [
+        PolicySpec(
+            fmt, str(path.resolve()), python, tuple(params.train.obs_keys), task_description(spec)
+        )
+        for _, path in given
+    ]
+    results, wall, probed, unit = roll_out(
+        params, spec, robot, args.variant, policies, seeds, executor, label
+    )
+    # in the terms of our own evaluation: one training run, its checkpoints in order
+    metrics = evaluation_metrics({0: [(epoch, success_rate(r)) for epoch, r in results]})
+    last = given[-1][1]
     metrics.update(
         epoch_unit=unit,
         policy_format=fmt,
-        policy=str(path),
-        policy_sha256=policy_digest(path),
+        policy=str(last),
+        policy_sha256=policy_digest(last),
         data_run_id=None,
         episodes=episodes,
         horizon=spec.horizon,
         cameras=",".join(probed.cameras),
         wall_seconds=wall,
-        seconds_per_episode=wall / episodes,
+        seconds_per_episode=wall / (episodes * len(given)),
         workers=e.workers,
         executor=e.executor,
     )
     with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
-        write_episodes(tmp_plot, rollouts)
+        write_episodes(tmp_plot, results)
         identity = metrics_identity(
             "evaluate", params.task, params.backend, robot, variant=args.variant, data=args.data
         )

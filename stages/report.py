@@ -32,6 +32,7 @@ from mimicgen_pipe.report.inputs import (
     read_metrics_folder,
     read_runs,
 )
+from mimicgen_pipe.report.outside import ROBOMIMIC
 from mimicgen_pipe.report.paper import PaperResults, load_paper_results
 from mimicgen_pipe.report.profiles import read_profile_runs
 from mimicgen_pipe.report.scaling import DATASET_SIZE, SCALING, draw_dataset_size
@@ -164,6 +165,10 @@ def _suite(
     main = params.task not in u.tasks and params.backend == u.backend
     own = [envs.task_spec(u.backend, params.task)] if main else []
     profiles = ([*own, *specs], read_profile_runs(metrics_dir))
-    blocks = build_suite_report(params, specs, ms, ablations, paper, scaling, figures, profiles)
+    outside_dir = metrics_dir / ROBOMIMIC
+    outside = read_metrics_folder(outside_dir) if outside_dir.is_dir() else MetricsSet(())
+    blocks = build_suite_report(
+        params, specs, ms, ablations, paper, scaling, figures, profiles, outside
+    )
     runs = sum(len(r) for r in ablations.values())
     return blocks, figures, suite_headline_numbers(params, ms), runs

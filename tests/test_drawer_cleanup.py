@@ -150,6 +150,9 @@ def test_a_suite_task_with_policies_must_be_a_suite_task_listed_once(tmp_path):
          "suite.d0_policy_tasks: 'place_sphere' is listed twice"),
         ("policy_tasks: [pull_cube_tool], seeded_policy_tasks: [place_sphere, pull_cube_tool]",
          "suite.seeded_policy_tasks: 'pull_cube_tool' is listed twice"),
+        ("policy_tasks: [pull_cube_tool], robomimic_tasks: [place_sphere]",
+         "suite.robomimic_tasks: 'place_sphere' has no D0 policy data (it is in none of "
+         "suite.policy_tasks, d0_policy_tasks and seeded_policy_tasks)"),
     ):  # fmt: skip
         (tmp_path / "params.yaml").write_text(base + extra + "}\n")
         res = cli("parse", cwd=tmp_path, check=False)

@@ -425,25 +425,27 @@ def test_rollouts_show_an_image_policy_its_cameras_pictures_of_the_moment():
 )
 def test_robomimic_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_path):
     """generate -> export -> robomimic's own train.py (BC-RNN, configs/robomimic/, a few
-    steps) -> evaluate_external: the metrics of our evaluation, the policy's identity, the
-    scenes of our evaluation seeds, each episode run to the task's horizon or to success;
-    the policy's server acts the same after the same reset seed."""
+    steps, a checkpoint after each of 2 epochs) -> evaluate_external of the run's models/
+    folder: both checkpoints in epoch order on the same scenes of our evaluation seeds, each
+    episode run to the task's horizon or to success; the metrics of our evaluation (max and
+    last over the checkpoints), the last policy's identity."""
     from mimicgen_pipe.evaluation import evaluation_seed
     from tests.test_learners import learner, short_robomimic_config
 
     cli("export", "--variant", "D1", "--formats", "robomimic", "--out", str(tmp_path / "x"),
         cwd=pipeline)  # fmt: skip
-    config_path = short_robomimic_config("bc_rnn_low_dim", tmp_path / "runs", 1, 5)
+    config_path = short_robomimic_config("bc_rnn_low_dim", tmp_path / "runs", 2, 5)
     config = json.loads(config_path.read_text())
+    config["experiment"]["save"]["every_n_epochs"] = 1
     config["experiment"]["validate"] = False  # 4 demos: too few for a validation batch
     config["train"]["hdf5_validation_filter_key"] = None
     config_path.write_text(json.dumps(config))
     res = learner("python", "-m", "robomimic.scripts.train", "--config", str(config_path),
                   "--dataset", str(tmp_path / "x/demos.hdf5"), cwd=tmp_path)  # fmt: skip
     assert "finished run successfully!" in res.stdout, res.stdout[-3000:] + res.stderr[-3000:]
-    (checkpoint,) = (tmp_path / "runs").glob("*/*/models/model_epoch_1.pth")
+    (checkpoint,) = (tmp_path / "runs").glob("*/*/models/model_epoch_2.pth")
 
-    cli("evaluate_external", "--policy", f"robomimic:{checkpoint}", "--data", "D1",
+    cli("evaluate_external", "--policy", f"robomimic:{checkpoint.parent}", "--data", "D1",
         "--variant", "D1", "--episodes", "2", "--metrics", str(tmp_path / "m.json"),
         "--plot", str(tmp_path / "episodes.csv"), cwd=pipeline)  # fmt: skip
     m = json.loads((tmp_path / "m.json").read_text())
@@ -452,14 +454,17 @@ def test_robomimic_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_
     assert {k: m[k] for k in identity} == identity
     assert (m["policy_format"], m["policy"]) == ("robomimic", str(checkpoint))
     assert m["policy_sha256"] == external.policy_digest(checkpoint)
-    assert (m["episodes"], m["seeds"], m["checkpoints"], m["horizon"]) == (2, 1, 1, 200)
-    assert (m["seed0_best_epoch"], m["epoch_unit"]) == (1, "epoch")  # model_epoch_1.pth
-    assert m["success_rate_max"] == m["success_rate_last"] in (0.0, 50.0, 100.0)
+    assert (m["episodes"], m["seeds"], m["checkpoints"], m["horizon"]) == (2, 1, 2, 200)
+    assert m["epoch_unit"] == "epoch" and m["seed0_best_epoch"] in (1, 2)
     rows = list(csv.DictReader((tmp_path / "episodes.csv").open()))
-    assert [int(r["seed"]) for r in rows] == [evaluation_seed(0, "D1", i) for i in range(2)]
+    assert [int(r["epoch"]) for r in rows] == [1, 1, 2, 2]
+    seeds = [evaluation_seed(0, "D1", i) for i in range(2)]
+    assert [int(r["seed"]) for r in rows] == seeds * 2
     assert all(r["steps"] == "200" or (r["success"] == "1" and int(r["steps"]) < 200)
                for r in rows)  # fmt: skip
-    assert 100.0 * np.mean([r["success"] == "1" for r in rows]) == m["success_rate_max"]
+    rates = [100.0 * np.mean([r["success"] == "1" for r in rows if r["epoch"] == e])
+             for e in ("1", "2")]  # fmt: skip
+    assert (m["success_rate_max"], m["success_rate_last"]) == (max(rates), rates[1])
 
     import envs
 
@@ -590,3 +595,25 @@ def test_a_checkpoint_whose_config_would_run_code_is_refused_and_runs_none(tmp_p
     assert "config.observation.encoder.rgb.core_kwargs.backbone_class" in line
     assert "not a class this server builds" in line and len(line) < 1000
     assert not (tmp_path / "m.json").exists()
+
+
+def test_a_robomimic_run_folder_is_its_checkpoints_in_epoch_order(tmp_path):
+    """robomimic:<folder> stands for its model_epoch_<N>.pth by epoch (100 after 50, not
+    before it as by name), other files left out; a file stands for itself; a folder without
+    checkpoints, or with one that torch did not save, is refused saying why."""
+    import torch
+
+    fmt = external.format_module("robomimic")
+    for epoch in (100, 50, 150):
+        torch.save({"epoch": torch.tensor(epoch)}, tmp_path / f"model_epoch_{epoch}.pth")
+    (tmp_path / "config.json").write_text("{}")
+    assert [p.name for p in fmt.run_checkpoints(tmp_path)] == [
+        "model_epoch_50.pth", "model_epoch_100.pth", "model_epoch_150.pth"
+    ]  # fmt: skip
+    assert fmt.why_not(tmp_path) is None
+    assert fmt.run_checkpoints(tmp_path / "model_epoch_50.pth") == [tmp_path / "model_epoch_50.pth"]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert "without model_epoch_<N>.pth" in fmt.why_not(empty)
+    (tmp_path / "model_epoch_200.pth").write_text("not a checkpoint")
+    assert "not a checkpoint torch saved" in fmt.why_not(tmp_path)

@@ -8,6 +8,7 @@ tests skip without that venv."""
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import os
@@ -170,6 +171,42 @@ def test_robomimic_trains_bc_rnn_on_our_export(exports, tmp_path, config, store,
         assert modalities["low_dim"] == report["stock_low_dim"], report["stock_low_dim"]
     assert report["action_shape"] == [7] and report["action_finite"]
     assert any(k.startswith("policy.nets.rnn") for k in report["model_keys"]), report
+
+
+def test_train_robomimic_normalizes_a_sequence_dataset_as_robomimic_does(exports, tmp_path):
+    """train_robomimic (robomimic 0.3.0's own training at our profile's size, here 2x8 LSTM,
+    3 epochs of 4 steps, a checkpoint every epoch) with --obs normalized: robomimic 0.3.0's
+    own train.py stops on this sequence dataset, ours trains. Each checkpoint carries the
+    mean and std robomimic computed over the export's training demos (mask/train), the loss
+    curve has one finite row per epoch, and the metrics name the checkpoints' epochs."""
+    import h5py
+
+    params = tmp_path / "params.yaml"
+    params.write_text(PARAMS + "train: {cpu: {hidden: 8, epochs: 3, steps_per_epoch: 4, "
+                      "batch_size: 4, seeds: [3]}}\nevaluate: {every_epochs: 1}\n")  # fmt: skip
+    dataset = exports["generated"] / "demos.hdf5"
+    cli("train_robomimic", "--params", str(params), "--dataset", str(dataset), "--obs",
+        "normalized", "--out", "run", "--metrics", "m.json", "--plot", "c.csv",
+        cwd=tmp_path)  # fmt: skip
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert (m["stage"], m["task"], m["data"]) == ("train", TASK, "D0")
+    assert (m["checkpoint_epochs"], m["normalize_obs"], m["seed"]) == ([1, 2, 3], True, 3)
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [
+        f"model_epoch_{e}.pth" for e in (1, 2, 3)
+    ]
+    curve = list(csv.DictReader((tmp_path / "c.csv").open()))
+    assert [int(r["epoch"]) for r in curve] == [1, 2, 3]
+    assert all(math.isfinite(float(r["loss"])) for r in curve)
+    with h5py.File(dataset) as f:
+        demos = [d.decode() for d in f["mask/train"][:]]
+        pos = np.concatenate([f[f"data/{d}/obs/robot0_eef_pos"][:] for d in demos]).astype(float)
+    import torch
+
+    ckpt = torch.load(tmp_path / "run/model_epoch_3.pth", weights_only=True)
+    stats = ckpt["obs_normalization_stats"]["robot0_eef_pos"]
+    assert np.allclose(stats["mean"][0], pos.mean(0), atol=1e-5)
+    assert np.allclose(stats["std"][0], pos.std(0) + 1e-3, atol=1e-5)  # robomimic's + 1e-3
+    assert json.loads(ckpt["config"])["algo"]["rnn"]["hidden_dim"] == 8
 
 
 def lerobot_losses(log: str) -> list[float]:

@@ -508,7 +508,15 @@ def test_the_suite_report_has_the_suite_sections_only():
     )  # fmt: skip
     paper = load_paper_results(PAPER)
     blocks = build_suite_report(
-        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}, ([], {})
+        suite_params(tasks),
+        specs,
+        MetricsSet(files),
+        {},
+        paper,
+        MetricsSet(()),
+        {},
+        ([], {}),
+        MetricsSet(()),
     )
     headings = [b.text for b in blocks if isinstance(b, Heading)]
     assert headings == [
@@ -527,7 +535,15 @@ def test_the_suite_report_has_the_suite_sections_only():
     # the policy data generated again since the policy was trained: its row is marked
     files = (*files[:2], gen("peg_insertion", "D0", 50.0, attempts=2000, run_id="u"), *files[3:])
     blocks = build_suite_report(
-        suite_params(tasks), specs, MetricsSet(files), {}, paper, MetricsSet(()), {}, ([], {})
+        suite_params(tasks),
+        specs,
+        MetricsSet(files),
+        {},
+        paper,
+        MetricsSet(()),
+        {},
+        ([], {}),
+        MetricsSet(()),
     )
     md = render_markdown(blocks)
     assert rows_of(md, "| peg_insertion (D0) | Square | missing | 62.0 / 54.0 † | missing |")
@@ -616,33 +632,45 @@ def test_suite_policy_table_sets_source_beside_generated_and_the_paper():
 
 def test_paper_geometry_tasks_meet_p1_minus_5_with_their_spread_over_seeds():
     """A task of suite.seeded_policy_tasks gets a row with its D0/D1 DGR beside O.1 and its
-    D0 policies' mean ± std over seeds beside P.1, marked by whether it reaches P.1 − 5; one
-    seed shows no spread, and a task outside the list gets no row."""
+    D0 policies' mean ± std over seeds beside P.1, marked by whether it reaches P.1 − 5, and a
+    row under it for each other profile's run that evaluated it; one seed shows no spread,
+    and a task outside the list gets no row."""
     specs = [envs.task_spec("maniskill", t) for t in ("stack_tower", "peg_insertion_square")]
     files = [
         gen("stack_tower", "D0", 70.0, purpose="dgr"),
-        m("evaluate", "stack_tower", "D0", data="D0", success_rate_max=84.0,
-          success_rate_max_std=2.5, seeds=3),
+        m("evaluate", "stack_tower", "D0", data="D0", success_rate_max=67.3,
+          success_rate_max_std=3.4, seeds=3),
         gen("peg_insertion_square", "D1", 87.5, purpose="dgr"),
         m("evaluate", "peg_insertion_square", "D0", data="D0", success_rate_max=96.0,
           success_rate_max_std=0.0, seeds=1),
     ]  # fmt: skip
+    gpu = MetricsSet((m("evaluate", "stack_tower", "D0", data="D0", success_rate_max=88.0,
+                        success_rate_max_std=1.6, seeds=3),))  # fmt: skip
     params = suite_params(["stack_tower", "peg_insertion_square"])
     params = replace(params, suite=replace(params.suite, seeded_policy_tasks=["stack_tower",
                      "peg_insertion_square"]))  # fmt: skip
     paper = load_paper_results(PAPER)
-    blocks = suite.paper_geometry_blocks(params, specs, MetricsSet(tuple(files)), paper)
+    blocks = suite.paper_geometry_blocks(
+        params,
+        specs,
+        MetricsSet(tuple(files)),
+        paper,
+        {"paper_gpu": gpu, "cpu_3seeds": MetricsSet(())},
+    )
     assert blocks[0] == Heading(2, "The paper's own geometry")
+    p1 = "88.0 ± 1.6 (Table P.1, Stack Three D0)"
     assert blocks[-1].rows == (
-        ("`stack_tower`", "Stack Three", "70.0 / 71.3", "missing / 68.9", "84.0 ± 2.5 (3 seeds)",
-         "88.0 ± 1.6 (Table P.1, Stack Three D0)", "yes (≥ 83.0)"),
-        ("`peg_insertion_square`", "Square", "missing / 73.7", "87.5 / 48.9", "96.0 (1 seed)",
-         "98.0 ± 1.6 (Table P.1, Square D0)", "yes (≥ 93.0)"),
+        ("`stack_tower`", "Stack Three", "70.0 / 71.3", "missing / 68.9", "`cpu` (the suite's)",
+         "67.3 ± 3.4 (3 seeds)", p1, "no (≥ 83.0)"),
+        ("", "", "", "", "`paper_gpu`", "88.0 ± 1.6 (3 seeds)", p1, "yes (≥ 83.0)"),
+        ("`peg_insertion_square`", "Square", "missing / 73.7", "87.5 / 48.9",
+         "`cpu` (the suite's)", "96.0 (1 seed)", "98.0 ± 1.6 (Table P.1, Square D0)",
+         "yes (≥ 93.0)"),
     )  # fmt: skip
     files[-1] = m("evaluate", "peg_insertion_square", "D0", data="D0", success_rate_max=92.0,
                   seeds=3, success_rate_max_std=1.0)  # fmt: skip
     rows = suite.paper_geometry_blocks(params, specs, MetricsSet(tuple(files)), paper)[-1].rows
-    assert rows[1][4:] == ("92.0 ± 1.0 (3 seeds)", "98.0 ± 1.6 (Table P.1, Square D0)",
+    assert rows[1][5:] == ("92.0 ± 1.0 (3 seeds)", "98.0 ± 1.6 (Table P.1, Square D0)",
                            "no (≥ 93.0)")  # fmt: skip
     none = replace(params, suite=replace(params.suite, seeded_policy_tasks=[]))
     assert suite.paper_geometry_blocks(none, specs, MetricsSet(tuple(files)), paper) == []
@@ -828,3 +856,39 @@ def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
     e2 = "Table E.2, image agents: Square D0 Panda 90.7, other arms 80.0–86.0; Square D1 Panda"
     assert f"{e3}, other arms 55.3–69.3; {e2} 73.3, other arms 48.0–60.7)" in md
     assert "plug_charger" not in md
+
+
+def test_the_outside_learner_sits_beside_ours_with_raw_and_normalized_observations():
+    """A task of suite.robomimic_tasks gets a row with our D0 policy's seed 0 (and its mean
+    over seeds), robomimic's runs with raw and normalized observations told apart by their
+    files' names (max, its epoch, last) and P.1; a missing run says so, and no tasks, no
+    section."""
+    from mimicgen_pipe.report.outside import outside_learner_blocks
+
+    specs = [envs.task_spec("maniskill", t) for t in ("stack_pyramid", "stack_tower")]
+    ours = m("evaluate", "stack_pyramid", "D0", data="D0", seeds=1, seed0_success_rate_max=30.0,
+             seed0_success_rate_last=26.0, success_rate_max=30.0)  # fmt: skip
+    tower = m("evaluate", "stack_tower", "D0", data="D0", seeds=3, success_rate_max=67.3,
+              seed0_success_rate_max=66.0, seed0_success_rate_last=66.0,
+              success_rate_max_std=3.4)  # fmt: skip
+
+    def outside(obs: str, best: float, epoch: int, last: float) -> Metrics:
+        r = m("evaluate", "stack_pyramid", "D0", data="D0", success_rate_max=best,
+              seed0_best_epoch=epoch, success_rate_last=last)  # fmt: skip
+        return replace(r, path=Path(f"robomimic/evaluate_stack_pyramid_D0_on_D0_{obs}.json"))
+
+    robomimic = MetricsSet((outside("raw", 4.0, 150, 2.0), outside("normalized", 28.0, 200, 28.0)))
+    params = suite_params(["stack_pyramid", "stack_tower"])
+    params = replace(params, suite=replace(params.suite, robomimic_tasks=["stack_pyramid",
+                     "stack_tower"]))  # fmt: skip
+    paper = load_paper_results(PAPER)
+    blocks = outside_learner_blocks(params, specs, MetricsSet((ours, tower)), robomimic, paper)
+    assert blocks[0] == Heading(2, "An outside learner on the same demos")
+    assert blocks[-1].rows == (
+        ("`stack_pyramid`", "30.0 / 26.0", "4.0 (epoch 150) / 2.0", "28.0 (epoch 200) / 28.0",
+         "88.0 ± 1.6 (Table P.1, Stack Three D0)"),
+        ("`stack_tower`", "66.0 / 66.0; 67.3 ± 3.4 over 3 seeds", "missing", "missing",
+         "88.0 ± 1.6 (Table P.1, Stack Three D0)"),
+    )  # fmt: skip
+    none = replace(params, suite=replace(params.suite, robomimic_tasks=[]))
+    assert outside_learner_blocks(none, specs, MetricsSet((ours,)), robomimic, paper) == []

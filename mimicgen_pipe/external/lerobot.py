@@ -26,6 +26,11 @@ PROCESSORS = ("policy_preprocessor.json", "policy_postprocessor.json")
 BACKBONES = ("resnet18", "resnet34", "resnet50")
 
 
+def run_checkpoints(path: Path) -> list[Path]:
+    """A policy folder (a pretrained_model) is one checkpoint."""
+    return [path]
+
+
 def why_not(path: Path) -> str | None:
     """A directory with config.json (a JSON object naming the policy ``type``),
     model.safetensors and the pre/post-processors (normalisation) lerobot saves beside

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-DESCRIPTION = "robomimic checkpoint .pth file"
+DESCRIPTION = "robomimic checkpoint .pth file, or a folder of a run's model_epoch_<N>.pth"
 # robomimic builds its encoders from class names in the checkpoint's config, some by eval()
 # (VisualCore's backbone_class and pool_class): a name is accepted only where it is one of
 # robomimic's own classes, so that no string of a checkpoint reaches eval
@@ -31,8 +31,23 @@ CLASSES = {
 }
 
 
+def run_checkpoints(path: Path) -> list[Path]:
+    """The checkpoints ``path`` names, in training order: a folder's ``model_epoch_<N>.pth``
+    (robomimic's ``models/`` folder, train_robomimic's output) by epoch; a file, itself."""
+    if not path.is_dir():
+        return [path]
+    found = [(checkpoint_epoch(p), p) for p in path.glob("model_epoch_*.pth")]
+    return [p for epoch, p in sorted((e, p) for e, p in found if e is not None)]
+
+
 def why_not(path: Path) -> str | None:
-    """A file torch.save wrote (a zip archive with a data.pkl), else why not."""
+    """A file torch.save wrote (a zip archive with a data.pkl), or a folder of checkpoints
+    named by epoch, each such a file; else why not."""
+    if path.is_dir():
+        found = run_checkpoints(path)
+        if not found:
+            return f"{path}: a folder without model_epoch_<N>.pth checkpoints"
+        return next((why for p in found if (why := why_not(p))), None)
     if not path.is_file():
         return f"{path}: no such file"
     if not zipfile.is_zipfile(path):

@@ -25,6 +25,7 @@ from mimicgen_pipe.report.ablations import ablation_blocks, suite_ablation_block
 from mimicgen_pipe.report.blocks import Block
 from mimicgen_pipe.report.curves import curve_blocks
 from mimicgen_pipe.report.inputs import Media, MetricsSet, Run
+from mimicgen_pipe.report.outside import outside_learner_blocks
 from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.report.profiles import profile_blocks
 from mimicgen_pipe.report.scaling import scaling_blocks
@@ -73,19 +74,22 @@ def build_suite_report(
     scaling_ms: MetricsSet,
     figures: Mapping[str, bytes],
     profiles: tuple[Sequence[TaskSpec], Mapping[str, MetricsSet]],
+    robomimic: MetricsSet,
 ) -> list[Block]:
     """The task suite's report (params suite.*). ``specs``: the suite's tasks; ``ms``: its
     metrics folder; ``ablations``: task -> its saved ablation runs; ``scaling_ms``: the
     dataset-size comparison's metrics folder, ``figures``: its figure where drawn
     (mimicgen_pipe.report.scaling); ``profiles``: the tasks, and run -> metrics folder, of
-    D0 policies under other training profiles (mimicgen_pipe.report.profiles)."""
+    D0 policies under other training profiles (mimicgen_pipe.report.profiles);
+    ``robomimic``: the outside learner's metrics folder (mimicgen_pipe.report.outside)."""
     blocks = [
         *suite.intro_blocks(specs),
         *suite.suite_dgr_blocks(params, specs, ms, paper),
         *suite.object_transfer_blocks(params, specs, ms, paper),
         *suite.suite_policy_blocks(params, specs, ms, paper),
-        *suite.paper_geometry_blocks(params, specs, ms, paper),
+        *suite.paper_geometry_blocks(params, specs, ms, paper, profiles[1]),
         *profile_blocks(params, *profiles, paper),
+        *outside_learner_blocks(params, specs, ms, robomimic, paper),
         *suite.long_task_blocks(params, specs, ms, paper),
         *suite.two_arm_blocks(params, specs, ms),
         *scaling_blocks(params, scaling_ms, figures),

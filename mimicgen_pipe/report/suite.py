@@ -236,11 +236,17 @@ TARGET_MARGIN = 5.0  # [points] a paper-geometry task meets the paper when SR >=
 
 
 def paper_geometry_blocks(
-    params: Params, specs: Sequence[TaskSpec], ms: MetricsSet, paper: PaperResults
+    params: Params,
+    specs: Sequence[TaskSpec],
+    ms: MetricsSet,
+    paper: PaperResults,
+    profiles: Mapping[str, MetricsSet] | None = None,
 ) -> list[Block]:
     """The tasks of suite.seeded_policy_tasks (the paper's own geometry) in one table: DGR on
     D0 and D1 beside Table O.1, and the generated D0 policies' success rate (max over
-    training, mean ± std over seeds) beside Table P.1's, with the target P.1 − TARGET_MARGIN."""
+    training, mean ± std over seeds) beside Table P.1's, with the target P.1 − TARGET_MARGIN:
+    the suite's own policies, and those of each run of ``profiles`` (run -> metrics folder,
+    mimicgen_pipe.report.profiles: other training profiles) that evaluated the task on D0."""
     seeded = [s for s in specs if s.name in params.suite.seeded_policy_tasks]
     if not seeded:
         return []
@@ -256,23 +262,31 @@ def paper_geometry_blocks(
                 f"{fmt(ours.values['dgr']) if ours else MISSING} / "
                 f"{fmt(ref[0].value) if ref else MISSING}"
             )
-        ev = evaluation(ms, params, spec.name, params.suite.backend, "D0", "D0")
         ref = paper.find(table="P.1", task=spec.paper_task, data="D0", variant="D0")
-        sr = ev.values.get("success_rate_max") if ev else None
         target = ref[0].value - TARGET_MARGIN if ref else None
-        met = MISSING if sr is None or target is None else ("yes" if sr >= target else "no")
-        rows.append(
-            (
-                f"`{spec.name}`",
-                spec.paper_task,
-                *dgr,
-                f"{_rate(ev, 'max')} ({_count(ev.values.get('seeds'), 'seed')})" if ev else MISSING,
-                ref[0].cite() if ref else MISSING,
-                f"{met} (≥ {fmt(target)})" if target is not None else MISSING,
+        runs = [(params.train.profile, ms)] + sorted((profiles or {}).items())
+        for i, (run, folder) in enumerate(runs):
+            ev = evaluation(folder, params, spec.name, params.suite.backend, "D0", "D0")
+            if ev is None and i > 0:
+                continue
+            sr = ev.values.get("success_rate_max") if ev else None
+            met = MISSING if sr is None or target is None else ("yes" if sr >= target else "no")
+            rows.append(
+                (
+                    f"`{spec.name}`" if i == 0 else "",
+                    spec.paper_task if i == 0 else "",
+                    *(dgr if i == 0 else ("", "")),
+                    f"`{run}`" + ("" if i else " (the suite's)"),
+                    f"{_rate(ev, 'max')} ({_count(ev.values.get('seeds'), 'seed')})"
+                    if ev
+                    else MISSING,
+                    ref[0].cite() if ref else MISSING,
+                    f"{met} (≥ {fmt(target)})" if target is not None else MISSING,
+                )
             )
-        )
     columns = ("task", "paper task", "DGR D0 % ours / O.1", "DGR D1 % ours / O.1",
-               "generated D0 SR max %", "paper (P.1, D0)", "SR ≥ P.1 − 5")  # fmt: skip
+               "policies (profile or run)", "generated D0 SR max %", "paper (P.1, D0)",
+               "SR ≥ P.1 − 5")  # fmt: skip
     return [
         Heading(2, "The paper's own geometry"),
         Text(
@@ -280,7 +294,9 @@ def paper_geometry_blocks(
             "our numbers should meet the paper's: the suite's fixed attempts on D0 and D1, "
             f"and the D0 policies trained on {params.train.num_demos} generated demos with "
             f"{params.suite.policy_seeds} seeds (mean ± std of the max over training), "
-            f"beside Tables O.1 and P.1. The target is P.1 − {fmt(TARGET_MARGIN)} points."
+            f"beside Tables O.1 and P.1. The target is P.1 − {fmt(TARGET_MARGIN)} points. "
+            "Below the suite's own policies, those of the runs under other training "
+            "profiles (the table of policies by training profile) on the same demos."
         ),
         Table(columns, tuple(rows)),
     ]
