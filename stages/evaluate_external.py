@@ -132,6 +132,20 @@ def eval_job(
     )
 
 
+def run_policies(texts: list[str]) -> tuple[str, list[Path]]:
+    """--policy's format and checkpoints (a robomimic folder: its checkpoints by epoch), in
+    training order; InputError where they are of more than one format."""
+    given = [
+        (fmt, checkpoint)
+        for fmt, path in map(parse_policy, texts)
+        for checkpoint in format_module(fmt).run_checkpoints(path)
+    ]
+    fmt = given[0][0]
+    if any(f != fmt for f, _ in given):
+        raise InputError(f"--policy: checkpoints of one run, of one format (got {fmt} and more)")
+    return fmt, [path for _, path in given]
+
+
 def roll_out(
     params: Params,
     spec: TaskSpec,
@@ -167,14 +181,7 @@ def run(args: argparse.Namespace) -> None:
     spec = envs.task_spec(params.backend, params.task)
     envs.check_variant(spec, args.variant)
     check_data(params, args.data, named=False)
-    given = [
-        (fmt, checkpoint)
-        for fmt, path in map(parse_policy, args.policy)
-        for checkpoint in format_module(fmt).run_checkpoints(path)
-    ]
-    fmt = given[0][0]
-    if any(f != fmt for f, _ in given):
-        raise InputError(f"--policy: checkpoints of one run, of one format (got {fmt} and more)")
+    fmt, given = run_policies(args.policy)
     e = params.evaluate
     episodes = e.episodes if args.episodes is None else args.episodes
     name = f"{args.data}_on_{args.variant}_{fmt}"
@@ -182,7 +189,7 @@ def run(args: argparse.Namespace) -> None:
     metrics_path = Path(args.metrics or default_metrics)
     plot_path = Path(args.plot or default_plot)
     # fails at once if another run writes them
-    claim(metrics_path, plot_path, inputs=[path for _, path in given])
+    claim(metrics_path, plot_path, inputs=given)
     executor = stage_executor(params, "evaluate")  # refuses unsafe Ray settings before any work
     # a policy acts with the arm its training data was recorded with
     robot = params.source.robot if args.data == "source" else params.generate.robot
@@ -194,14 +201,14 @@ def run(args: argparse.Namespace) -> None:
         PolicySpec(
             fmt, str(path.resolve()), python, tuple(params.train.obs_keys), task_description(spec)
         )
-        for _, path in given
+        for path in given
     ]
     results, wall, probed, unit = roll_out(
         params, spec, robot, args.variant, policies, seeds, executor, label
     )
     # in the terms of our own evaluation: one training run, its checkpoints in order
     metrics = evaluation_metrics({0: [(epoch, success_rate(r)) for epoch, r in results]})
-    last = given[-1][1]
+    last = given[-1]
     metrics.update(
         epoch_unit=unit,
         policy_format=fmt,

@@ -124,11 +124,22 @@ def test_a_task_file_is_in_its_own_stages_manifests_only():
 
 
 def test_an_exporter_edit_reruns_export_stages_only():
+    """Only the export stages, and the suite's robomimic stages: its export, and the
+    training and rollouts of robomimic's policies, which build their observations with the
+    exporters' own functions (mimicgen_pipe.external)."""
     edited = rerun_by_edit("mimicgen_pipe/exporters/lerobot.py")
+    tasks = yaml.safe_load((REPO / "suite/params.yaml").read_text())["suite"]["robomimic_tasks"]
+    assert tasks
+    outside = {
+        f"suite/code_deps/{stage}_suite_robomimic/{task}.txt"
+        for stage in ("export", "train", "evaluate")
+        for task in tasks
+    }
     assert edited == {
         "code_deps/export.txt",
         "code_deps/export_observed.txt",
         "quickstart/code_deps/export.txt",
+        *outside,
     }, sorted(edited)
 
 
