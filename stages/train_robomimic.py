@@ -17,12 +17,13 @@ import json
 import re
 import shutil
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 from mimicgen_pipe.errors import InputError, StageError
-from mimicgen_pipe.external import DEFAULT_PYTHON, _robomimic_train, check_python
+from mimicgen_pipe.external import DEFAULT_PYTHON, _robomimic_train, check_python, format_module
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, directory_kind, output_set
 from mimicgen_pipe.params import Params, TrainProfile
@@ -123,21 +124,18 @@ def run(args: argparse.Namespace) -> None:
     python = check_python(args.python or str(DEFAULT_PYTHON))
     claim((out, CHECKPOINTS), Path(args.metrics), Path(args.plot), inputs=[dataset])
     with output_set(out, args.metrics, args.plot) as (tmp_out, tmp_metrics, tmp_plot):
-        work = tmp_out.parent / f".{out.name}.work"
-        shutil.rmtree(work, ignore_errors=True)
-        work.mkdir()
-        try:
-            config = run_config(base, prof, every, normalize, dataset, work.resolve() / "runs")
+        with tempfile.TemporaryDirectory(prefix=f".{out.name}.work-", dir=tmp_out.parent) as w:
+            work = Path(w).resolve()
+            config = run_config(base, prof, every, normalize, dataset, work / "runs")
             print(f"train_robomimic: {prof.epochs} epochs x {prof.steps_per_epoch} steps, "
                   f"2x{prof.hidden} LSTM, normalize_obs {normalize} -> {out}")  # fmt: skip
             folder, seconds = train(python, config, work)
             shutil.copytree(folder / "models", tmp_out)
             losses = epoch_losses((folder / "logs/log.txt").read_text())
-        finally:
-            shutil.rmtree(work, ignore_errors=True)
         with open(tmp_plot, "w", newline="") as f:
             csv.writer(f).writerows([("epoch", "loss"), *losses])
-        saved = sorted(int(p.stem.split("_")[-1]) for p in tmp_out.glob("model_epoch_*.pth"))
+        fmt = format_module("robomimic")
+        saved = [fmt.checkpoint_epoch(p) for p in fmt.run_checkpoints(tmp_out)]
         identity = metrics_identity("train", params.task, params.backend,
                                     params.generate.robot, data=args.data)  # fmt: skip
         write_metrics(tmp_metrics, identity | {

@@ -133,9 +133,11 @@ def short_robomimic_config(name: str, out: Path, epochs: int, steps: int) -> Pat
 
 
 def robomimic_losses(stdout: str) -> list[float]:
-    """The training loss robomimic's train.py prints after each epoch."""
-    blocks = re.findall(r"^Train Epoch \d+\n(\{.*?^\})", stdout, re.M | re.S)
-    return [json.loads(b)["Loss"] for b in blocks]
+    """The training loss robomimic's train.py prints after each epoch, read as the
+    train_robomimic stage reads robomimic's log."""
+    from stages.train_robomimic import epoch_losses
+
+    return [loss for _, loss in epoch_losses(stdout)]
 
 
 @pytest.mark.parametrize(

@@ -507,17 +507,14 @@ def test_the_suite_report_has_the_suite_sections_only():
         gen("stack_cube", "D0", 96.2, attempts=1039),  # the main task's: not in this report
     )  # fmt: skip
     paper = load_paper_results(PAPER)
-    blocks = build_suite_report(
-        suite_params(tasks),
-        specs,
-        MetricsSet(files),
-        {},
-        paper,
-        MetricsSet(()),
-        {},
-        ([], {}),
-        MetricsSet(()),
-    )
+
+    def report(files: tuple[Metrics, ...]) -> list:
+        """The suite's report of ``files`` alone: no ablations, scaling, profiles or
+        robomimic runs."""
+        return build_suite_report(suite_params(tasks), specs, MetricsSet(files), {}, paper,
+                                  MetricsSet(()), {}, ([], {}), MetricsSet(()))  # fmt: skip
+
+    blocks = report(files)
     headings = [b.text for b in blocks if isinstance(b, Heading)]
     assert headings == [
         "MimicGen task suite: our numbers and the paper's",
@@ -534,18 +531,7 @@ def test_the_suite_report_has_the_suite_sections_only():
     assert "†" not in md
     # the policy data generated again since the policy was trained: its row is marked
     files = (*files[:2], gen("peg_insertion", "D0", 50.0, attempts=2000, run_id="u"), *files[3:])
-    blocks = build_suite_report(
-        suite_params(tasks),
-        specs,
-        MetricsSet(files),
-        {},
-        paper,
-        MetricsSet(()),
-        {},
-        ([], {}),
-        MetricsSet(()),
-    )
-    md = render_markdown(blocks)
+    md = render_markdown(report(files))
     assert rows_of(md, "| peg_insertion (D0) | Square | missing | 62.0 / 54.0 † | missing |")
     assert "† measured on the data of another generate run" in md
 
