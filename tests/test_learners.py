@@ -211,6 +211,22 @@ def test_train_robomimic_normalizes_a_sequence_dataset_as_robomimic_does(exports
     assert json.loads(ckpt["config"])["algo"]["rnn"]["hidden_dim"] == 8
 
 
+def test_robomimic_training_normalizes_each_step_once(exports, tmp_path):
+    """robomimic 0.3.0 normalises a training window twice (its dataset, then
+    postprocess_batch_for_training) and a rollout step once; with train_robomimic's patch,
+    robomimic's own dataset and batch processing feed the network (raw - mean) / std, the
+    rollout's input, once."""
+    from mimicgen_pipe.external import _robomimic_train
+
+    res = learner("python", str(CHECKS / "check_robomimic_normalization.py"),
+                  _robomimic_train.__file__, str(exports["generated"] / "demos.hdf5"),
+                  cwd=tmp_path)  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+    report = json.loads(res.stdout.splitlines()[-1])
+    assert report["error"] < 1e-4, report
+    assert report["moved"] > 0.1, report  # normalised at all
+
+
 def lerobot_losses(log: str) -> list[float]:
     """The training loss lerobot-train logs every log_freq steps."""
     return [float(x) for x in re.findall(r" step:\d+ .*? loss:([-+.\deE]+|nan|inf) ", log)]

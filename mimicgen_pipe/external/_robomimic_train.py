@@ -6,14 +6,17 @@ path under the learners' Python, where mimicgen_pipe is not installed::
 It differs from robomimic 0.3.0's ``scripts/train.py`` in two ways only:
 
 - A failed run exits with status 1 (``train.py`` prints the error and exits 0).
-- With ``train.hdf5_normalize_obs``, robomimic 0.3.0 stops at its first batch of a sequence
-  dataset ("shape mismatch in @normalize obs"): its ``normalize_obs`` compares the (1, D)
-  mean with a (seq_length, D) window instead of broadcasting over the window's steps. Here
-  the mean and std broadcast, so each step is normalised as robomimic normalises it
-  (x - mean) / std, with the statistics robomimic computed over the training demos.
-  robomimic saves those statistics in every checkpoint, and its ``RolloutPolicy``
-  normalises each rollout step with them, unpatched: a checkpoint trained here rolls out
-  as any robomimic checkpoint does.
+- With ``train.hdf5_normalize_obs``, robomimic 0.3.0 normalises each training sample twice:
+  ``SequenceDataset.get_item`` normalises the window, and ``postprocess_batch_for_training``
+  normalises the batch again, while its ``RolloutPolicy`` normalises a rollout step once
+  (robomimic fixed this after 0.3.0, in its pull request 81). Its ``normalize_obs`` also
+  refuses a window or a batch of windows: it compares the (1, D) mean with (seq_length, D)
+  ("shape mismatch in @normalize obs"). Here the dataset leaves its windows raw and
+  ``normalize_obs`` broadcasts the statistics over the leading dimensions, so each training
+  step is normalised once, (x - mean) / std, with the statistics robomimic computed over the
+  training demos, as a rollout step is. robomimic saves those statistics in every
+  checkpoint, and its ``RolloutPolicy`` applies them, unpatched: a checkpoint trained here
+  rolls out as any robomimic checkpoint does.
 """
 
 from __future__ import annotations
@@ -43,12 +46,31 @@ def normalize_obs(obs_dict: dict, obs_normalization_stats: dict) -> dict:
     return obs_dict
 
 
+def normalize_once() -> None:
+    """Patch robomimic 0.3.0 so that training normalises each observation once: in
+    ``postprocess_batch_for_training`` (by :func:`normalize_obs`), not also in
+    ``SequenceDataset.get_item``, which still computes the statistics."""
+    import robomimic.utils.obs_utils as obs_utils
+    from robomimic.utils.dataset import SequenceDataset
+
+    get_item = SequenceDataset.get_item
+
+    def get_item_raw(self: SequenceDataset, index: int) -> dict:
+        normalize, self.hdf5_normalize_obs = self.hdf5_normalize_obs, False
+        try:
+            return get_item(self, index)
+        finally:
+            self.hdf5_normalize_obs = normalize
+
+    SequenceDataset.get_item = get_item_raw
+    obs_utils.normalize_obs = normalize_obs
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--config", required=True, help="a robomimic config JSON (algo_name: bc)")
     args = p.parse_args()
 
-    import robomimic.utils.obs_utils as obs_utils
     import robomimic.utils.torch_utils as torch_utils
     from robomimic.config import config_factory
     from robomimic.scripts.train import train
@@ -60,7 +82,7 @@ def main() -> int:
         config.update(external)
     config.lock()
     if config.train.hdf5_normalize_obs:
-        obs_utils.normalize_obs = normalize_obs
+        normalize_once()
     train(config, device=torch_utils.get_torch_device(try_to_use_cuda=config.train.cuda))
     return 0
 
