@@ -1,5 +1,5 @@
-"""The same bytes on any x86-64 CPU with AVX2 and FMA: the numeric libraries' code paths,
-pinned before they load.
+"""The numeric libraries' code paths, pinned before they load, so that one CPU type gives
+the same bytes run after run and machine after machine.
 
 numpy, the OpenBLAS inside numpy's wheel, torch's own kernels, MKL (torch's BLAS) and oneDNN
 (torch's LSTM and linear layers) each choose their code path at run time from the CPU they
@@ -9,10 +9,12 @@ demo's 4x4 pose products (numpy -> OpenBLAS dgemm) and every training step come 
 other last bits on another CPU type, and so does every hash downstream in ``dvc.lock``.
 
 :func:`pin` sets each library's own switch to the AVX2/FMA path (x86-64-v3, which every
-x86-64 server CPU since 2013-2015 has). On a CPU that has these instructions this gives the
-bytes of an AVX2 machine; on one with AVX-512 too, the same bytes. It must run before numpy
-or torch is imported: ``mimicgen-pipe`` calls it first, and child processes (workers,
-the motion planner, Ray's local workers) inherit the environment it sets.
+x86-64 server CPU since 2013-2015 has). It must run before numpy or torch is imported:
+``mimicgen-pipe`` calls it first, and child processes (workers, the motion planner, Ray's
+local workers) inherit the environment it sets. Measured: an AMD Zen 3 (the committed locks'
+type) gives the same bytes with and without it; an Intel Xeon with AVX-512 gives other bytes
+than Zen 3 with it, through MKL, whose ``MKL_CBWR`` branches are Intel's only (on another
+vendor's CPU MKL runs its own choice), so the pins do not carry bytes across vendors.
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ PINNED = {
     # (Sandybridge, Prescott) and AVX-512 ones give a source demo other last bits; Haswell's
     # are the AVX2/FMA kernels, the ones OpenBLAS runs on AMD Zen 1-3 too
     "OPENBLAS_CORETYPE": "Haswell",
-    # MKL's conditional numerical reproducibility: the AVX2 code path on any CPU that has it
+    # MKL's conditional numerical reproducibility: the AVX2 code path on an Intel CPU that has
+    # it (on other vendors' CPUs MKL ignores it and runs its own choice)
     "MKL_CBWR": "AVX2",
     # torch's vectorised kernels (Sleef transcendentals, reductions): avx512 ones differ
     "ATEN_CPU_CAPABILITY": "avx2",
