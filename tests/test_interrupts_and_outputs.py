@@ -162,9 +162,10 @@ def test_workers_die_with_a_killed_main_process(work):
 
 @pytest.mark.sim
 def test_one_writer_per_output_set_and_stale_temporaries_removed(work):
-    """A second generate on the same --out stops at once (exit 2, one line naming the path)
-    while the first completes; the first removes what killed runs left beside its outputs
-    (and nothing else), and its kept store, failed store and metrics carry one run id."""
+    """A second generate on the same --out stops (exit 2, one line naming the path) before
+    the first ends, and the first completes; the first removes what killed runs left beside
+    its outputs (and nothing else), and its kept store, failed store and metrics carry one
+    run id."""
     gen = work / "data/locked"
     gen.mkdir(parents=True)
     (gen / ".stack_D0.zarr.tmp-abc").mkdir()
@@ -180,12 +181,11 @@ def test_one_writer_per_output_set_and_stale_temporaries_removed(work):
     while not (gen / ".stack_D0.zarr.lock").exists():
         assert first.poll() is None and time.monotonic() - t0 < 60, first.communicate()[1]
         time.sleep(0.05)
-    t1 = time.monotonic()
     second = cli(*GENERATE, "--attempts", "4", *args, cwd=work, check=False)
-    took = time.monotonic() - t1
+    # refused while the first still runs: no wall-clock bound, which a loaded 2-core machine
+    # overruns in the second CLI's start-up alone
     assert first.poll() is None, "the first run ended before the second was refused"
     assert second.returncode == 2, second.stderr[-3000:]
-    assert took < 15
     lines = own_lines(second.stderr)
     assert len(lines) == 1 and "Traceback" not in second.stderr, second.stderr[-3000:]
     assert lines[0].startswith("mimicgen-pipe generate: error: data/locked/stack_D0.zarr: ")
