@@ -182,16 +182,18 @@ def test_one_writer_per_output_set_and_stale_temporaries_removed(work):
         assert first.poll() is None and time.monotonic() - t0 < 60, first.communicate()[1]
         time.sleep(0.05)
     second = cli(*GENERATE, "--attempts", "4", *args, cwd=work, check=False)
-    # refused while the first still runs: no wall-clock bound, which a loaded 2-core machine
-    # overruns in the second CLI's start-up alone
+    # refused while the first still runs and before any attempt of its own: no progress bar
+    # (a wall-clock bound instead is overrun on a loaded 2-core machine by start-up alone)
     assert first.poll() is None, "the first run ended before the second was refused"
     assert second.returncode == 2, second.stderr[-3000:]
+    assert not any("|" in ln for ln in second.stderr.splitlines()), second.stderr[-3000:]
     lines = own_lines(second.stderr)
     assert len(lines) == 1 and "Traceback" not in second.stderr, second.stderr[-3000:]
     assert lines[0].startswith("mimicgen-pipe generate: error: data/locked/stack_D0.zarr: ")
     assert f"another mimicgen-pipe run (pid {first.pid}) is writing this output" in lines[0]
     _, err = first.communicate(timeout=300)
     assert first.returncode == 0, err[-3000:]
+    assert any("|" in ln for ln in err.splitlines()), "a run that generates shows its bar"
     assert sorted(p.name for p in gen.iterdir()) == [
         ".other.zarr.tmp-abc",
         "stack_D0.zarr",
