@@ -17,6 +17,11 @@ of success, other.
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # the CLI's pinned code paths, before numpy or torch loads:
+    from mimicgen_pipe import arithmetic  # rollouts then match the stages' to the bit
+
+    arithmetic.pin()
+
 import argparse
 import json
 from collections import Counter

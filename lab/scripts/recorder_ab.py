@@ -15,6 +15,11 @@ and this tree's time over the other's.
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # the CLI's pinned code paths, before numpy or torch loads:
+    from mimicgen_pipe import arithmetic  # rollouts then match the stages' to the bit
+
+    arithmetic.pin()
+
 import argparse
 import importlib.util
 import sys

@@ -11,6 +11,11 @@ Prints a line per (variant, spec) and writes the figures to ``--out``.
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # the CLI's pinned code paths, before numpy or torch loads:
+    from mimicgen_pipe import arithmetic  # rollouts then match the stages' to the bit
+
+    arithmetic.pin()
+
 import argparse
 import dataclasses
 import json
