@@ -17,8 +17,8 @@ task's) to measure what it does to the same checkpoints on the same scenes.
 
 from __future__ import annotations
 
-if __name__ == "__main__":  # the CLI's pinned code paths, before numpy or torch loads:
-    from mimicgen_pipe import arithmetic  # rollouts then match the stages' to the bit
+if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
+    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 

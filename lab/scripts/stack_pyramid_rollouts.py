@@ -17,8 +17,8 @@ pushed in the plane [m], the hand's closest approach to C [m]. A summary sorts t
 
 from __future__ import annotations
 
-if __name__ == "__main__":  # the CLI's pinned code paths, before numpy or torch loads:
-    from mimicgen_pipe import arithmetic  # rollouts then match the stages' to the bit
+if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
+    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 
