@@ -228,7 +228,9 @@ class TransferParams:
     is generated from the same Panda source demos, ``attempts`` fixed attempts each, on
     ``backend`` (a back end under envs/); the other generation knobs come from ``generate``.
     maniskill_robots: arms the main ManiSkill task is also generated with (``attempts``
-    each), from the main run's source demos."""
+    each), from the main run's source demos. policy_tasks: tasks of ``tasks`` whose D0
+    policy trains on ``generate.num_demos`` demos generated with ``generate.robot``, with
+    seeds 0..``policy_seeds``-1, against Table P.1's mean ± std over 3 seeds."""
 
     backend: str = "pybullet"
     tasks: list[str] = field(default_factory=lambda: ["stack", "stack_three", "square_peg"])
@@ -236,6 +238,8 @@ class TransferParams:
     robots: list[str] = field(default_factory=lambda: ["panda", "iiwa", "xarm6"])
     maniskill_robots: list[str] = field(default_factory=lambda: ["panda", "xarm6"])
     attempts: int = 200
+    policy_tasks: list[str] = field(default_factory=list)
+    policy_seeds: int = 3
 
 
 @dataclass(frozen=True)
@@ -350,6 +354,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "pose_noise.seed": (0, 2**31 - 1),
     "train.*.seeds": (0, 2**31 - 1),  # each seed of the list
     "suite.policy_seeds": (1, 100),  # seeds 0..N-1
+    "transfer.policy_seeds": (1, 100),
     "train.num_demos": (1, 10_000_000),
     "train.val_fraction": (0.0, 0.5),
     "train.*.hidden": (1, 8192),

@@ -50,7 +50,8 @@ def check_variants(params: Params, path: str) -> None:
     robot-transfer task (transfer.variants), a suite task (suite.variants) or the scaling
     task (suite.scaling.variant) lacks one of the listed reset variants, or a suite task with
     policies or the scaling task is not a suite task (or, with policies, is listed twice),
-    or a task of suite.robomimic_tasks has no D0 policy data."""
+    or a task of suite.robomimic_tasks has no D0 policy data, or a task of
+    transfer.policy_tasks is not in transfer.tasks."""
     u = params.suite
     seen: set[str] = set()
     for key in ("suite.policy_tasks", "suite.d0_policy_tasks", "suite.seeded_policy_tasks"):
@@ -73,6 +74,12 @@ def check_variants(params: Params, path: str) -> None:
             f"{scaling.demos} demos of suite.scaling.demos"
         )
     t = params.transfer
+    for task in t.policy_tasks:
+        if task not in t.tasks:
+            raise InputError(
+                f"{path}: transfer.policy_tasks: {task!r} is not in transfer.tasks (its "
+                "policy data is generated from transfer's source demos)"
+            )
     lists = [("generate.variants", params.backend, params.task, params.generate.variants)]
     lists += [("transfer.variants", t.backend, task, t.variants) for task in t.tasks]
     lists += [("suite.variants", u.backend, task, u.variants) for task in u.tasks]

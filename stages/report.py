@@ -73,7 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     which.add_argument(
         "--transfer",
         action="store_true",
-        help="robot transfer's report (params transfer.*: DGR per arm) instead",
+        help="robot transfer's report (params transfer.*: DGR per arm, policies) instead",
     )
     p.add_argument(
         "--metrics",
@@ -115,7 +115,9 @@ def run(args: argparse.Namespace) -> None:
     images: dict[str, bytes] = {}  # image path in the report -> PNG bytes embedded in the HTML
     figures: dict[str, bytes] = {}  # figure file written beside the report -> PNG bytes
     if transfer:
-        blocks = build_transfer_report(params, ms, paper)
+        t = params.transfer
+        specs = [envs.task_spec(t.backend, task) for task in t.policy_tasks]
+        blocks = build_transfer_report(params, specs, ms, paper)
         summary = transfer_headline_numbers(params, ms)
         title, runs = "Robot transfer", 0
     elif transit:

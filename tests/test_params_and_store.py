@@ -90,6 +90,19 @@ def test_the_scaling_task_is_a_suite_task_with_its_demos(tmp_path, scaling, need
     check_variants(load_params(write(tmp_path, ok)), "params.yaml")
 
 
+def test_a_transfer_policy_task_is_a_transfer_task(tmp_path):
+    """transfer.policy_tasks' policy data comes from transfer's own source demos."""
+    from stages import check_variants
+
+    text = "transfer: {tasks: [stack, stack_three], policy_tasks: [%s]}"
+    with pytest.raises(InputError, match="transfer.policy_tasks: 'square_peg' is not in "
+                       "transfer.tasks"):  # fmt: skip
+        check_variants(load_params(write(tmp_path, text % "square_peg")), "params.yaml")
+    check_variants(load_params(write(tmp_path, text % "stack_three")), "params.yaml")
+    with pytest.raises(InputError, match="transfer.policy_seeds: expected a value in"):
+        load_params(write(tmp_path, "transfer: {policy_seeds: 0}"))
+
+
 # every seed: generation and evaluation derive reset seeds from theirs with SeedSequence,
 # pose_noise and train seed numpy / torch generators: none takes a negative seed
 @pytest.mark.parametrize(

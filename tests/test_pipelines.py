@@ -104,7 +104,12 @@ def test_each_pipeline_reruns_only_its_own_files_readers(graph):
     assert len([s for s in noise if s.startswith("transfer/dvc.yaml:generate_transfer@")]) == 18
     assert len([s for s in noise if "generate_transfer_maniskill@" in s]) == 4
     assert {f"{t}:observe_transfer@stack", f"{t}:report_transfer"} <= noise
-    assert len(noise) == 24
+    # Stack Three's policy chain: its 1000 D0 demos, then the policies trained on them
+    policy = {f"{t}:{s}_transfer_policy@stack_three" for s in ("generate", "train", "evaluate")}
+    assert policy <= noise and len(noise) == 24 + len(policy)
+    assert rerun(graph, "train.cpu", t, "transfer/params.yaml") == policy - {
+        f"{t}:generate_transfer_policy@stack_three"
+    } | {f"{t}:report_transfer"}
     scaling = rerun(graph, "suite.scaling.max_attempts", "suite/dvc.yaml", "suite/params.yaml")
     assert {s.split(":")[-1].split("@")[0] for s in scaling} == {
         "generate_suite_scaling", "train_suite_scaling", "evaluate_suite_scaling", "report_suite"

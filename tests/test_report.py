@@ -112,7 +112,7 @@ def test_the_papers_transfer_and_coverage_numbers_come_from_its_file(tmp_path):
     md = render_markdown(blocks)
     assert "(e.g. Coffee D1 97.1%, Threading D1 71%, Appendix Q)" in md
     transfer = render_markdown(
-        build_transfer_report(Params(), MetricsSet(()), load_paper_results(changed))
+        build_transfer_report(Params(), [], MetricsSet(()), load_paper_results(changed))
     )
     assert "Paper Table E.1, Square: D0: Panda 73.7, IIWA 12.3, UR5e 64.7; D1: Panda 48.9" in (
         transfer
@@ -204,7 +204,12 @@ def test_the_transfer_report_shows_each_arms_committed_dgr(tmp_path):
         cells.append(f"{m['dgr']:.1f} ({m['ik_failures']}/{m['attempts']} IK)")
         assert summary[f"dgr_stack_D0_{robot}"] == round(m["dgr"], 1)
     assert f"| stack (D0) | {' | '.join(cells)} |" in md
-    assert "| stack_cube (D1) |" in md and len(summary) == 3 * 2 * 3 + 2 * 2
+    # PyBullet Stack Three's D0 policies (transfer.policy_tasks), beside P.1
+    ev = json.loads((REPO / "transfer/metrics/evaluate_stack_three_D0_on_D0.json").read_text())
+    sr = f"{ev['success_rate_max']:.1f} ± {ev['success_rate_max_std']:.1f} (3 seeds)"
+    assert rows_of(md, "| `stack_three` | Stack Three |")[0].split(" | ")[5] == sr
+    assert summary["sr_stack_three_D0_on_D0"] == round(ev["success_rate_max"], 1)
+    assert "| stack_cube (D1) |" in md and len(summary) == 3 * 2 * 3 + 2 * 2 + 1
 
 
 def test_a_generate_only_experiment_marks_what_is_of_the_earlier_run():
@@ -303,6 +308,35 @@ def test_transfer_table_reads_each_arms_metrics():
     assert table.rows == (("stack (D0)", "95.0 (7/200 IK)", "78.5 (42/200 IK)", "missing"),)
     main = transfer_table(ms, "maniskill", ["stack_cube"], ["D0"], ["panda", "xarm6"])
     assert main.rows == (("stack_cube (D0)", "93.5 (0/200 IK)", "missing"),)
+
+
+def test_transfer_policies_sit_beside_p1_with_the_generating_arms_dgr():
+    """A task of transfer.policy_tasks: the generating arm's fixed attempts on D0 and D1
+    beside O.1 (not the policy data's guarantee run, nor another arm's), its D0 policies'
+    mean ± std over seeds beside P.1 with the target, and its headline SR; no row for a
+    task outside the list."""
+    from mimicgen_pipe.report.summary import transfer_headline_numbers
+    from mimicgen_pipe.report.transfer import transfer_policy_blocks
+
+    spec = envs.task_spec("pybullet", "stack_three")
+    pb = {"backend": "pybullet"}
+    files = (
+        gen("stack_three", "D0", 79.0, purpose="dgr", **pb),
+        gen("stack_three", "D1", 65.0, purpose="dgr", robot="iiwa", **pb),
+        gen("stack_three", "D0", 76.0, attempts=1316, **pb),  # the policy data
+        m("evaluate", "stack_three", "D0", data="D0", success_rate_max=84.7,
+          success_rate_max_std=2.5, seeds=3, **pb),
+    )  # fmt: skip
+    params = replace(Params(), transfer=replace(Params().transfer, policy_tasks=["stack_three"]))
+    paper = load_paper_results(PAPER)
+    blocks = transfer_policy_blocks(params, [spec], MetricsSet(files), paper)
+    assert blocks[0] == Heading(2, "Policies on pybullet: the paper's own geometry")
+    assert blocks[-1].rows == (
+        ("`stack_three`", "Stack Three", "79.0 / 71.3", "missing / 68.9", "`cpu`",
+         "84.7 ± 2.5 (3 seeds)", "88.0 ± 1.6 (Table P.1, Stack Three D0)", "yes (≥ 83.0)"),
+    )  # fmt: skip
+    assert transfer_headline_numbers(params, MetricsSet(files))["sr_stack_three_D0_on_D0"] == 84.7
+    assert transfer_policy_blocks(Params(), [spec], MetricsSet(files), paper) == []
 
 
 def write_folder(folder: Path, *files: Metrics) -> Path:

@@ -10,8 +10,11 @@ does (its seeds, blocks and torch threads, in one process: the same rollouts) an
 each episode step by step: whether the hand ever held A, the first step A sat on B by
 StackCube's test of position (centres within the half diagonal + 5 mm in xy, 4 cm ± 5 mm in
 z), the first step it sat there released (robosuite's test, approximately: on B stands for
-lifted and touching), and how the episode ends. A summary sorts the failures
-(:func:`failure_kind`).
+lifted and touching), and how the episode ends: A's centre against B's at the last step
+(xy distance and height above resting on B, mm, world frame), the hand's path over the
+last 50 steps (mm), the steps A was held within 1 cm of B's axis, the step A was first
+held and the step from which the hand moved less than 1 mm a step to the end. A summary sorts the
+failures (:func:`failure_kind`) and says where the failed ones ended.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import json
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import torch
 
 import envs
@@ -34,6 +38,7 @@ from mimicgen_pipe.params import load_params
 from mimicgen_pipe.training import load_rollout_policy
 
 TASK = "stack_cube"
+CUBE = 0.04  # [m] StackCube's cube edge: A rests on B with its centre this far above B's
 
 
 def failure_kind(row: dict) -> str:
@@ -59,10 +64,19 @@ class _Follow:
         self.held_a = False
         self.first_on = -1
         self.first_released_on = -1
+        self.first_held = -1
+        self.held_over_b = 0  # steps A was held within 1 cm of B's axis
+        self.hand: list[np.ndarray] = []  # the hand's position [m, world] after each step
 
     def __call__(self, env) -> None:
         self.t += 1
         s = env.subtask_signals()
+        obj = env.object_poses()
+        self.hand.append(env.eef_pose()[:3, 3].copy())  # poses are 4x4 matrices
+        over = np.linalg.norm(obj["cubeA"][:2, 3] - obj["cubeB"][:2, 3]) < 0.01
+        self.held_over_b += int(bool(s["grasp_cubeA"]) and over)
+        if s["grasp_cubeA"] and not self.held_a:
+            self.first_held = self.t
         self.held_a |= bool(s["grasp_cubeA"])
         if s["cubeA_on_cubeB"] and self.first_on < 0:
             self.first_on = self.t
@@ -74,6 +88,11 @@ def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict
     follow = _Follow()
     r = rollout(env, policy, seed, variant, horizon, objects, on_step=follow)
     s = env.subtask_signals()
+    a, b = (env.object_poses()[k][:3, 3] for k in ("cubeA", "cubeB"))
+    last = np.asarray(follow.hand[-51:])
+    moved = np.linalg.norm(np.diff(np.asarray(follow.hand), axis=0), axis=1)
+    # the hand's last still stretch: from this step on it moves less than 1 mm per step
+    still_from = len(moved) - int(np.argmax(moved[::-1] >= 0.001)) if moved.max() >= 0.001 else 0
     return {
         "seed": seed,
         "success": r.success,
@@ -83,6 +102,14 @@ def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict
         "first_released_on": follow.first_released_on,
         "end_on": bool(s["cubeA_on_cubeB"]),
         "end_held": bool(s["grasp_cubeA"]),
+        "end_a_from_b_xy_mm": round(float(np.linalg.norm(a[:2] - b[:2])) * 1000, 1),
+        "end_a_above_rest_mm": round(float(a[2] - b[2] - CUBE) * 1000, 1),
+        "hand_path_last50_mm": round(
+            float(np.linalg.norm(np.diff(last, axis=0), axis=1).sum()) * 1000, 1
+        ),
+        "held_over_b_steps": follow.held_over_b,
+        "first_held": follow.first_held,
+        "still_from": still_from,
     }
 
 
@@ -124,6 +151,13 @@ def main() -> None:
     late = [r["first_released_on"] for r in failed if r["first_released_on"] >= 0]
     if late:
         print(f"failures with A released on B: first at step {min(late)}–{max(late)} of {horizon}")
+    for r in failed:
+        print(
+            f"  {failure_kind(r)}: A {r['end_a_from_b_xy_mm']} mm from B's axis, "
+            f"{r['end_a_above_rest_mm']} mm above resting on B, held over B "
+            f"{r['held_over_b_steps']} steps; hand moved {r['hand_path_last50_mm']} mm in the "
+            f"last 50 steps; A held from step {r['first_held']}, hand still from {r['still_from']}"
+        )
     if args.out is not None:
         args.out.write_text(json.dumps({"horizon": horizon, "episodes": rows}, indent=1) + "\n")
 

@@ -30,7 +30,11 @@ from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.report.profiles import profile_blocks
 from mimicgen_pipe.report.scaling import scaling_blocks
 from mimicgen_pipe.report.settings import method_settings
-from mimicgen_pipe.report.transfer import transfer_blocks, transfer_table
+from mimicgen_pipe.report.transfer import (
+    transfer_blocks,
+    transfer_policy_blocks,
+    transfer_table,
+)
 from mimicgen_pipe.report.transit import transit_blocks
 from mimicgen_pipe.report.videos import video_blocks
 from mimicgen_pipe.taskspec import TaskSpec
@@ -100,16 +104,17 @@ def build_suite_report(
     return blocks
 
 
-def build_transfer_report(params: Params, ms: MetricsSet, paper: PaperResults) -> list[Block]:
-    """The robot-transfer pipeline's report (params transfer.*): ``ms``, its metrics folder."""
+def build_transfer_report(
+    params: Params, specs: Sequence[TaskSpec], ms: MetricsSet, paper: PaperResults
+) -> list[Block]:
+    """The robot-transfer pipeline's report (params transfer.*): ``specs``, the tasks of
+    transfer.policy_tasks; ``ms``, its metrics folder."""
     t, variants = params.transfer, params.generate.variants
-    return transfer_blocks(
-        [
-            transfer_table(ms, t.backend, t.tasks, t.variants, t.robots),
-            transfer_table(ms, params.backend, [params.task], variants, t.maniskill_robots),
-        ],
-        paper,
-    )
+    tables = [
+        transfer_table(ms, t.backend, t.tasks, t.variants, t.robots),
+        transfer_table(ms, params.backend, [params.task], variants, t.maniskill_robots),
+    ]
+    return [*transfer_blocks(tables, paper), *transfer_policy_blocks(params, specs, ms, paper)]
 
 
 def build_transit_report(params: Params, ms: MetricsSet) -> list[Block]:

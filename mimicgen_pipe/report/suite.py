@@ -235,6 +235,48 @@ def _sr(m: Metrics | None) -> str:
 TARGET_MARGIN = 5.0  # [points] a paper-geometry task meets the paper when SR >= P.1 - this
 
 
+PAPER_GEOMETRY_COLUMNS = ("task", "paper task", "DGR D0 % ours / O.1", "DGR D1 % ours / O.1",
+                          "policies (profile or run)", "generated D0 SR max %",
+                          "paper (P.1, D0)", "SR ≥ P.1 − 5")  # fmt: skip
+
+
+def paper_geometry_rows(
+    spec: TaskSpec,
+    dgr: Sequence[Metrics | None],
+    runs: Sequence[tuple[str, Metrics | None]],
+    paper: PaperResults,
+) -> list[tuple[str, ...]]:
+    """The rows of one task built to the paper's geometry (PAPER_GEOMETRY_COLUMNS): its
+    fixed attempts on D0 and D1 (``dgr``) beside Table O.1, then per run of ``runs`` (label,
+    the evaluation of its D0 policies on D0) the success rate (max over training, mean ± std
+    over seeds) beside Table P.1's, with whether it reaches P.1 − TARGET_MARGIN."""
+    cells = []
+    for v, ours in zip(("D0", "D1"), dgr, strict=True):
+        ref = paper.find(table="O.1", task=spec.paper_task, variant=v, metric="dgr")
+        cells.append(
+            f"{fmt(ours.values['dgr']) if ours else MISSING} / "
+            f"{fmt(ref[0].value) if ref else MISSING}"
+        )
+    ref = paper.find(table="P.1", task=spec.paper_task, data="D0", variant="D0")
+    target = ref[0].value - TARGET_MARGIN if ref else None
+    rows = []
+    for i, (label, ev) in enumerate(runs):
+        sr = ev.values.get("success_rate_max") if ev else None
+        met = MISSING if sr is None or target is None else ("yes" if sr >= target else "no")
+        rows.append(
+            (
+                f"`{spec.name}`" if i == 0 else "",
+                spec.paper_task if i == 0 else "",
+                *(cells if i == 0 else ("", "")),
+                label,
+                f"{_rate(ev, 'max')} ({_count(ev.values.get('seeds'), 'seed')})" if ev else MISSING,
+                ref[0].cite() if ref else MISSING,
+                f"{met} (≥ {fmt(target)})" if target is not None else MISSING,
+            )
+        )
+    return rows
+
+
 def paper_geometry_blocks(
     params: Params,
     specs: Sequence[TaskSpec],
@@ -242,51 +284,23 @@ def paper_geometry_blocks(
     paper: PaperResults,
     profiles: Mapping[str, MetricsSet] | None = None,
 ) -> list[Block]:
-    """The tasks of suite.seeded_policy_tasks (the paper's own geometry) in one table: DGR on
-    D0 and D1 beside Table O.1, and the generated D0 policies' success rate (max over
-    training, mean ± std over seeds) beside Table P.1's, with the target P.1 − TARGET_MARGIN:
-    the suite's own policies, and those of each run of ``profiles`` (run -> metrics folder,
-    mimicgen_pipe.report.profiles: other training profiles) that evaluated the task on D0."""
+    """The tasks of suite.seeded_policy_tasks (the paper's own geometry) in one table
+    (:func:`paper_geometry_rows`): the suite's own policies, and those of each run of
+    ``profiles`` (run -> metrics folder, mimicgen_pipe.report.profiles: other training
+    profiles) that evaluated the task on D0."""
     seeded = [s for s in specs if s.name in params.suite.seeded_policy_tasks]
     if not seeded:
         return []
     rows = []
     for spec in seeded:
-        dgr = []
-        for v in ("D0", "D1"):
-            ours, ref = (
-                dgr_run(ms, params, spec.name, v),
-                paper.find(table="O.1", task=spec.paper_task, variant=v, metric="dgr"),
-            )
-            dgr.append(
-                f"{fmt(ours.values['dgr']) if ours else MISSING} / "
-                f"{fmt(ref[0].value) if ref else MISSING}"
-            )
-        ref = paper.find(table="P.1", task=spec.paper_task, data="D0", variant="D0")
-        target = ref[0].value - TARGET_MARGIN if ref else None
-        runs = [(params.train.profile, ms)] + sorted((profiles or {}).items())
-        for i, (run, folder) in enumerate(runs):
-            ev = evaluation(folder, params, spec.name, params.suite.backend, "D0", "D0")
-            if ev is None and i > 0:
-                continue
-            sr = ev.values.get("success_rate_max") if ev else None
-            met = MISSING if sr is None or target is None else ("yes" if sr >= target else "no")
-            rows.append(
-                (
-                    f"`{spec.name}`" if i == 0 else "",
-                    spec.paper_task if i == 0 else "",
-                    *(dgr if i == 0 else ("", "")),
-                    f"`{run}`" + ("" if i else " (the suite's)"),
-                    f"{_rate(ev, 'max')} ({_count(ev.values.get('seeds'), 'seed')})"
-                    if ev
-                    else MISSING,
-                    ref[0].cite() if ref else MISSING,
-                    f"{met} (≥ {fmt(target)})" if target is not None else MISSING,
-                )
-            )
-    columns = ("task", "paper task", "DGR D0 % ours / O.1", "DGR D1 % ours / O.1",
-               "policies (profile or run)", "generated D0 SR max %", "paper (P.1, D0)",
-               "SR ≥ P.1 − 5")  # fmt: skip
+        dgr = [dgr_run(ms, params, spec.name, v) for v in ("D0", "D1")]
+        runs = [(f"`{params.train.profile}` (the suite's)", ms)] + [
+            (f"`{run}`", folder) for run, folder in sorted((profiles or {}).items())
+        ]
+        evs = [(label, evaluation(f, params, spec.name, params.suite.backend, "D0", "D0"))
+               for label, f in runs]  # fmt: skip
+        evs = evs[:1] + [(label, ev) for label, ev in evs[1:] if ev is not None]
+        rows += paper_geometry_rows(spec, dgr, evs, paper)
     return [
         Heading(2, "The paper's own geometry"),
         Text(
@@ -298,7 +312,7 @@ def paper_geometry_blocks(
             "Below the suite's own policies, those of the runs under other training "
             "profiles (the table of policies by training profile) on the same demos."
         ),
-        Table(columns, tuple(rows)),
+        Table(PAPER_GEOMETRY_COLUMNS, tuple(rows)),
     ]
 
 

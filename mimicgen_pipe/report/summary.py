@@ -78,7 +78,8 @@ def transit_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]
 def transfer_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]:
     """The robot-transfer pipeline's headline numbers: ``dgr_<task>_<variant>_<robot>`` for
     every cell of transfer.tasks x transfer.variants x transfer.robots and of the default
-    pipeline's task x generate.variants x transfer.maniskill_robots. A number whose metrics
+    pipeline's task x generate.variants x transfer.maniskill_robots; ``sr_<task>_D0_on_D0``
+    for each task of transfer.policy_tasks (SR max, mean over seeds). A number whose metrics
     are not in ``ms`` is left out."""
     t = params.transfer
     cells = [(t.backend, task, v, r) for task in t.tasks for v in t.variants for r in t.robots]
@@ -91,4 +92,7 @@ def transfer_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float
         f"dgr_{task}_{v}_{r}": _shown(transfer_cell(ms, task, backend, v, r), "dgr")
         for backend, task, v, r in cells
     }
+    for task in t.policy_tasks:
+        ev = evaluation(ms, params, task, t.backend, "D0", "D0")
+        numbers[f"sr_{task}_D0_on_D0"] = _shown(ev, "success_rate_max")
     return {k: x for k, x in sorted(numbers.items()) if x is not None}

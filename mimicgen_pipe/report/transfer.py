@@ -1,14 +1,23 @@
-"""Robot transfer (paper E): the data generation rate per arm from the same source demos."""
+"""Robot transfer (paper E): the data generation rate per arm from the same source demos;
+and the D0 policies of the transfer back end's tasks built to the paper's geometry
+(transfer.policy_tasks), beside Table P.1."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
 from mimicgen_pipe.metrics import Metrics
+from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
 from mimicgen_pipe.report.fmt import MISSING, fmt
-from mimicgen_pipe.report.inputs import MetricsSet
+from mimicgen_pipe.report.inputs import MetricsSet, evaluation
 from mimicgen_pipe.report.paper import PaperResults
+from mimicgen_pipe.report.suite import (
+    PAPER_GEOMETRY_COLUMNS,
+    TARGET_MARGIN,
+    paper_geometry_rows,
+)
+from mimicgen_pipe.taskspec import TaskSpec
 
 
 def transfer_cell(
@@ -68,4 +77,35 @@ def transfer_blocks(tables: Sequence[Table], paper: PaperResults) -> list[Block]
             "by construction)."
         ),
         *tables,
+    ]
+
+
+def transfer_policy_blocks(
+    params: Params, specs: Sequence[TaskSpec], ms: MetricsSet, paper: PaperResults
+) -> list[Block]:
+    """The tasks of transfer.policy_tasks (``specs``: theirs) on the transfer back end, one
+    table as the suite's paper geometry (mimicgen_pipe.report.suite.paper_geometry_rows):
+    the generating arm's fixed attempts on D0 and D1 beside Table O.1, and the D0 policies
+    (transfer.policy_seeds seeds) beside Table P.1."""
+    t = params.transfer
+    tasks = [s for s in specs if s.name in t.policy_tasks]
+    if not tasks:
+        return []
+    rows = []
+    for spec in tasks:
+        dgr = [transfer_cell(ms, spec.name, t.backend, v, params.generate.robot)
+               for v in ("D0", "D1")]  # fmt: skip
+        ev = evaluation(ms, params, spec.name, t.backend, "D0", "D0")
+        rows += paper_geometry_rows(spec, dgr, [(f"`{params.train.profile}`", ev)], paper)
+    return [
+        Heading(2, f"Policies on {t.backend}: the paper's own geometry"),
+        Text(
+            f"The {t.backend} tasks of `transfer.policy_tasks`: the {params.generate.robot}'s "
+            f"{t.attempts} fixed attempts on D0 and D1 (the table above), and BC-RNN "
+            f"(`{params.train.profile}` profile) trained on {params.train.num_demos} "
+            f"generated D0 demos with {t.policy_seeds} seeds, rolled out on D0 (mean ± std "
+            "of the max over training), beside Tables O.1 and P.1. The target is P.1 − "
+            f"{fmt(TARGET_MARGIN)} points."
+        ),
+        Table(PAPER_GEOMETRY_COLUMNS, tuple(rows)),
     ]
