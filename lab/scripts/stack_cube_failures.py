@@ -89,8 +89,7 @@ def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict
     r = rollout(env, policy, seed, variant, horizon, objects, on_step=follow)
     s = env.subtask_signals()
     a, b = (env.object_poses()[k][:3, 3] for k in ("cubeA", "cubeB"))
-    last = np.asarray(follow.hand[-51:])
-    moved = np.linalg.norm(np.diff(np.asarray(follow.hand), axis=0), axis=1)
+    moved = np.linalg.norm(np.diff(np.asarray(follow.hand), axis=0), axis=1)  # [m] per step
     # the hand's last still stretch: from this step on it moves less than 1 mm per step
     still_from = len(moved) - int(np.argmax(moved[::-1] >= 0.001)) if moved.max() >= 0.001 else 0
     return {
@@ -104,9 +103,7 @@ def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict
         "end_held": bool(s["grasp_cubeA"]),
         "end_a_from_b_xy_mm": round(float(np.linalg.norm(a[:2] - b[:2])) * 1000, 1),
         "end_a_above_rest_mm": round(float(a[2] - b[2] - CUBE) * 1000, 1),
-        "hand_path_last50_mm": round(
-            float(np.linalg.norm(np.diff(last, axis=0), axis=1).sum()) * 1000, 1
-        ),
+        "hand_path_last50_mm": round(float(moved[-50:].sum()) * 1000, 1),
         "held_over_b_steps": follow.held_over_b,
         "first_held": follow.first_held,
         "still_from": still_from,
