@@ -79,8 +79,14 @@ install_learners_venv() {
     -r tests/learners/requirements.txt
 }
 
+say() { echo "setup: $*"; }
+say "1/4 the Vulkan driver SAPIEN needs (Mesa 25 lavapipe on Debian 12)"
 install_vulkan
+say "2/4 .venv: CPU torch and the pinned packages of requirements.txt (about 2.5 GB)"
 install_venv
+say "3/4 FFmpeg's libraries (LeRobot's video decoder, for the tests)"
 install_ffmpeg
+say "4/4 .venv-learners: robomimic's and LeRobot's trainers, for the tests (about 4.7 GB)"
 install_learners_venv
-echo "setup: done (.venv ready; activate with: source .venv/bin/activate)"
+say "done: .venv for the pipelines (activate with: . .venv/bin/activate)," \
+  ".venv-learners for the tests' outside trainers"

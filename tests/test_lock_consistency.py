@@ -1,0 +1,178 @@
+"""Every committed ``dvc.lock`` is one consistent run: each stage's recorded dependency is
+what its producer's lock entry records as output, and each params value a lock records is
+the value in the params file now. Reads the locks as plain YAML (no DVC, no simulator)."""
+
+from __future__ import annotations
+
+import copy
+import functools
+from pathlib import Path
+
+import pytest
+import yaml
+
+# the suite's lock is large: libyaml's loader reads it in a fraction of the pure-Python time
+_Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+REPO = Path(__file__).resolve().parents[1]
+PIPELINES = (
+    "dvc.yaml",
+    "quickstart/dvc.yaml",
+    "suite/dvc.yaml",
+    "transit/dvc.yaml",
+    "transfer/dvc.yaml",
+)
+
+# Edges of the suite's lock made from stores the lock no longer holds: their producers were
+# re-run on another CPU type and these consumers were not. Each task chain leaves this list
+# when it is re-run whole; an edge may leave it, never join it.
+STALE_SUITE_EDGES = frozenset(
+    (stage, path)
+    for path, stages in {
+        "data/parsed/peg_insertion.zarr": (
+            "generate_suite@peg_insertion-D0",
+            "generate_suite@peg_insertion-D1",
+            "generate_suite@peg_insertion-D2",
+            "generate_suite_object_transfer@peg_insertion",
+            "generate_suite_policy@peg_insertion-D1",
+            "generate_suite_scaling",
+        ),
+        "data/parsed/stack_pyramid.zarr": (
+            "generate_suite@stack_pyramid-D0",
+            "generate_suite@stack_pyramid-D1",
+            "generate_suite@stack_pyramid-D2",
+            "generate_suite_policy@stack_pyramid-D1",
+        ),
+        "data/parsed/plug_charger.zarr": (
+            "generate_suite@plug_charger-D0",
+            "generate_suite@plug_charger-D1",
+            "generate_suite@plug_charger-D2",
+            "generate_suite_policy@plug_charger-D1",
+        ),
+        "data/parsed/drawer_cleanup.zarr": (
+            "generate_suite@drawer_cleanup-D0",
+            "generate_suite@drawer_cleanup-D1",
+            "generate_suite@drawer_cleanup-D2",
+        ),
+        "data/parsed/peg_insertion_square.zarr": (
+            "generate_suite@peg_insertion_square-D0",
+            "generate_suite@peg_insertion_square-D1",
+            "generate_suite@peg_insertion_square-D2",
+        ),
+        "data/parsed/stack_tower.zarr": (
+            "generate_suite@stack_tower-D0",
+            "generate_suite@stack_tower-D1",
+            "generate_suite@stack_tower-D2",
+        ),
+        "data/source/peg_insertion.zarr": ("train_suite@peg_insertion",),
+        "data/source/stack_pyramid.zarr": ("train_suite@stack_pyramid",),
+        "data/source/plug_charger.zarr": ("train_suite@plug_charger",),
+        "data/source/drawer_cleanup.zarr": ("train_suite_d0@drawer_cleanup",),
+        "data/generated/peg_insertion_D0_train.zarr": ("train_suite@peg_insertion",),
+        "data/generated/stack_pyramid_D0_train.zarr": ("train_suite@stack_pyramid",),
+        "data/generated/plug_charger_D0_train.zarr": ("train_suite@plug_charger",),
+        "data/generated/pull_cube_tool_D0_train.zarr": ("train_suite@pull_cube_tool",),
+        "data/generated/drawer_cleanup_D0_train.zarr": ("train_suite_d0@drawer_cleanup",),
+        "data/generated/peg_insertion_square_D0_train.zarr": (
+            "train_suite_seeded@peg_insertion_square",
+        ),
+        "data/generated/stack_tower_D0_train.zarr": ("train_suite_seeded@stack_tower",),
+    }.items()
+    for stage in stages
+)
+
+
+def _lookup(mapping: object, dotted: str) -> object:
+    for key in dotted.split("."):
+        if not isinstance(mapping, dict) or key not in mapping:
+            return KeyError(dotted)
+        mapping = mapping[key]
+    return mapping
+
+
+def _wdirs(dvc_file: Path) -> dict[str, Path]:
+    stages = (yaml.load(dvc_file.read_text(), _Loader) or {}).get("stages") or {}
+    return {
+        name: (dvc_file.parent / str(body.get("wdir", "."))).resolve()
+        for name, body in stages.items()
+    }
+
+
+@functools.cache
+def _params(path: Path) -> object:
+    return yaml.load(path.read_text(), _Loader)
+
+
+def locks(root: Path = REPO) -> dict[str, dict]:
+    """Each pipeline's lock, ``dvc.yaml`` path -> parsed ``dvc.lock``."""
+    return {f: yaml.load((root / f).with_name("dvc.lock").read_text(), _Loader) for f in PIPELINES}
+
+
+def inconsistencies(found: dict[str, dict], root: Path = REPO) -> list[tuple[str, str, str]]:
+    """``(pipeline, stage, what)`` for every lock edge whose recorded dependency md5 differs
+    from its producer's recorded output md5 (across all pipelines: a stage may read another
+    pipeline's store), and every recorded params value that differs from its file."""
+    produced: dict[Path, str | None] = {}
+    where: dict[tuple[str, str], Path] = {}
+    for dvc_file, lock in found.items():
+        wdirs = _wdirs(root / dvc_file)
+        for stage, body in (lock.get("stages") or {}).items():
+            wdir = wdirs.get(stage.split("@")[0], (root / dvc_file).parent.resolve())
+            where[dvc_file, stage] = wdir
+            for out in body.get("outs") or ():
+                produced[(wdir / out["path"]).resolve()] = out.get("md5")
+    bad = []
+    for dvc_file, lock in found.items():
+        for stage, body in (lock.get("stages") or {}).items():
+            wdir = where[dvc_file, stage]
+            for dep in body.get("deps") or ():
+                path = (wdir / dep["path"]).resolve()
+                if path in produced and produced[path] != dep.get("md5"):
+                    bad.append((dvc_file, stage, dep["path"]))
+            for params_file, values in (body.get("params") or {}).items():
+                current = _params(wdir / params_file)
+                for key, value in values.items():
+                    if _lookup(current, key) != value:
+                        bad.append((dvc_file, stage, f"{params_file}:{key}"))
+    return bad
+
+
+@pytest.fixture(scope="module")
+def committed() -> dict[str, dict]:
+    return locks()
+
+
+@pytest.mark.parametrize("dvc_file", PIPELINES)
+def test_each_lock_is_one_run(committed, dvc_file):
+    bad = [(s, what) for f, s, what in inconsistencies(committed) if f == dvc_file]
+    if dvc_file == "suite/dvc.yaml":
+        bad = [edge for edge in bad if edge not in STALE_SUITE_EDGES]
+    assert not bad, f"{dvc_file}: stages recorded inputs their producers no longer hold: {bad}"
+
+
+def test_the_suites_stale_edges_are_still_stale(committed):
+    """An edge re-run into consistency must leave STALE_SUITE_EDGES, so the list only shrinks."""
+    stale = {(s, what) for f, s, what in inconsistencies(committed) if f == "suite/dvc.yaml"}
+    assert STALE_SUITE_EDGES <= stale, sorted(STALE_SUITE_EDGES - stale)
+
+
+def _quickstart(found: list[tuple[str, str, str]]) -> list[tuple[str, str, str]]:
+    return [edge for edge in found if edge[0] == "quickstart/dvc.yaml"]
+
+
+def test_a_broken_edge_or_a_changed_param_is_found(committed):
+    edited = copy.deepcopy(committed)
+    parse = edited["quickstart/dvc.yaml"]["stages"]["parse"]
+    parse["deps"] = [
+        dict(d, md5="0" * 32) if d["path"].endswith("source/stack_cube.zarr") else d
+        for d in parse["deps"]
+    ]
+    assert _quickstart(inconsistencies(edited)) == [
+        ("quickstart/dvc.yaml", "parse", "quickstart/data/source/stack_cube.zarr")
+    ]
+    edited = copy.deepcopy(committed)
+    source = edited["quickstart/dvc.yaml"]["stages"]["source"]
+    source["params"]["quickstart/params.yaml"]["source"]["seed"] = 12345
+    assert _quickstart(inconsistencies(edited)) == [
+        ("quickstart/dvc.yaml", "source", "quickstart/params.yaml:source")
+    ]
