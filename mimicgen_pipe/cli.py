@@ -12,6 +12,7 @@ import contextlib
 import importlib
 import signal
 import sys
+from pathlib import Path
 from typing import Any
 
 from mimicgen_pipe import arithmetic
@@ -40,6 +41,8 @@ STAGES = {
     "report": "report.md and report.html: our metrics beside the paper's, with ablations",
     "compare": "a pipeline's runs and experiments side by side: changed params, headline numbers",
 }
+# the stages that read a params file (--params, default ./params.yaml)
+TAKES_PARAMS = frozenset(STAGES) - {"compare"}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -77,8 +80,9 @@ def _close_progress_bars() -> None:
             bar.close()
 
 
-def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Any]]:
-    """The command line's parser, and each stage's module (its ``run``)."""
+def build_parser(only: str | None = None) -> tuple[argparse.ArgumentParser, dict[str, Any]]:
+    """The command line's parser, and each stage's module (its ``run``): every stage's, or
+    with ``only`` just that one's, so that one command imports one stage's libraries."""
     parser = argparse.ArgumentParser(
         prog="mimicgen-pipe",
         description="MimicGen data generation as DVC stages: `dvc repro` runs the default "
@@ -88,6 +92,9 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Any]]:
     sub = parser.add_subparsers(dest="stage", required=True, metavar="STAGE")
     modules = {}
     for name, help_text in STAGES.items():
+        if only is not None and name != only:
+            sub.add_parser(name, help=help_text)  # listed in --help, never parsed
+            continue
         module = importlib.import_module(f"stages.{name}")
         modules[name] = module
         stage_parser = sub.add_parser(name, help=help_text, description=module.__doc__)
@@ -101,8 +108,38 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Any]]:
     return parser, modules
 
 
+def params_file_given(argv: list[str]) -> str | None:
+    """The ``--params`` value of a command line (``--params F`` or ``--params=F``), else
+    None."""
+    for i, arg in enumerate(argv):
+        if arg == "--params" and i + 1 < len(argv):
+            return argv[i + 1]
+        if arg.startswith("--params="):
+            return arg.partition("=")[2]
+    return None
+
+
+def check_params_first(argv: list[str]) -> None:
+    """Validate the params file a stage will read (``--params``, else ./params.yaml where it
+    exists) before the stage's own, slower imports: a typo costs well under a second. The
+    stage validates it again, with its command line's overrides."""
+    given = params_file_given(argv)
+    path = Path(given if given is not None else "params.yaml")
+    if given is not None or path.is_file():
+        from mimicgen_pipe.params import load_params
+
+        load_params(path)
+
+
 def _run_stage(argv: list[str]) -> int:
-    parser, modules = build_parser()
+    stage = next((a for a in argv if a in STAGES), None)
+    try:
+        if stage in TAKES_PARAMS and not {"-h", "--help"} & set(argv):
+            check_params_first(argv)
+    except InputError as exc:
+        print(one_line(f"mimicgen-pipe {stage}: error: {exc}"), file=sys.stderr)
+        return 2
+    parser, modules = build_parser(only=stage)
     args = parser.parse_args(argv)
     try:
         with outputs.claims(replace_tracked=args.replace_tracked):

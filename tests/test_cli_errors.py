@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 
 import h5py
 import numpy as np
 import pytest
 
 from mimicgen_pipe.store import write_store
-from tests.conftest import cli
+from tests.conftest import REPO, cli
 
 
 def outputs(work):
@@ -268,3 +271,22 @@ def test_data_is_training_data_the_task_has(tmp_path, args, expected):
     (tmp_path / "input").mkdir()
     (tmp_path / "input/m.pth").write_bytes(b"")
     assert expected in run_bad(tmp_path, *args)
+
+
+def test_a_params_typo_stops_before_the_stages_libraries_load(tmp_path, monkeypatch):
+    """The params file is checked before the stage's module (and zarr, torch, the
+    simulators) is imported: a typo's error comes in well under a second."""
+    (tmp_path / "params.yaml").write_text(MINIMAL + "generate: {action_nois: 0.02}\n")
+    probe = (
+        "import sys; from mimicgen_pipe import cli\n"
+        "rc = cli.main(['generate', '--variant', 'D0'])\n"
+        "heavy = ('stages.generate', 'zarr', 'torch', 'sapien', 'mani_skill', 'pybullet')\n"
+        "print(rc, [m for m in heavy if m in sys.modules])\n"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", probe], cwd=tmp_path, capture_output=True, text=True,
+        env=dict(os.environ, PYTHONPATH=str(REPO)),
+    )  # fmt: skip
+    assert res.stdout.split(None, 1) == ["2", "[]\n"], res.stdout + res.stderr
+    assert "params.yaml: generate.action_nois: unknown key" in res.stderr
+    assert outputs(tmp_path) == []
