@@ -25,6 +25,7 @@ from mimicgen_pipe.errors import InputError, StageError, one_line  # noqa: E402
 from mimicgen_pipe.interrupts import Interrupted, as_exceptions  # noqa: E402
 
 STAGES = {
+    "check": "validate a pipeline's params file and the files it names (its first stage)",
     "source": "record source demos on D0 (motion planners or a trajectory file)",
     "parse": "split source demos into object-centric subtask segments",
     "boundaries": "print candidate subtask ends (gripper events) for manual annotation",

@@ -154,13 +154,16 @@ def _resolve_list(text: str, params: dict) -> list[str]:
     return [str(v) for v in node]  # type: ignore[union-attr]
 
 
-def pipeline_params(pipeline: Path) -> dict:
-    """The params a pipeline's stages read: its first ``vars`` file, else params.yaml
-    beside it."""
+def params_path(pipeline: Path) -> Path:
+    """A pipeline's params file: its first ``vars`` file, else params.yaml beside it."""
     doc = yaml.safe_load(pipeline.read_text())
     files = [v for v in doc.get("vars", []) if isinstance(v, str)]
-    path = pipeline.parent / (files[0] if files else "params.yaml")
-    return yaml.safe_load(path.read_text())
+    return pipeline.parent / (files[0] if files else "params.yaml")
+
+
+def pipeline_params(pipeline: Path) -> dict:
+    """The params a pipeline's stages read (params_path)."""
+    return yaml.safe_load(params_path(pipeline).read_text())
 
 
 TASKLESS = ("--suite", "--transit")  # report flags: the command reads no single task's file
@@ -181,20 +184,6 @@ def stage_code(stage: dict, params: dict) -> tuple[str, str, list[str]]:
     else:
         tasks = [words[words.index("--task") + 1]] if "--task" in words else [params["task"]]
     return f"stages.{words[1]}", backend, tasks
-
-
-def read_params(stage: dict) -> list[str]:
-    """The params keys that decide which files a stage runs: its back end and its tasks."""
-    cmd = " ".join(stage["cmd"].split())
-    keys = re.findall(r"--backend \$\{([\w.]+)\}", cmd)
-    if "--backend" not in cmd:
-        keys.append("backend")
-    if "${item.task}" in cmd:
-        axis = (stage.get("matrix") or {}).get("task")
-        keys += re.findall(r"^\$\{([\w.]+)\}$", axis) if isinstance(axis, str) else []
-    elif not any(flag in cmd.split() for flag in TASKLESS):
-        keys += re.findall(r"--task \$\{([\w.]+)\}", cmd) or ([] if "--task" in cmd else ["task"])
-    return keys
 
 
 MANIFESTS = "code_deps"  # per pipeline folder: one manifest per stage
@@ -262,12 +251,9 @@ def manifest_dep(pipeline: Path, name: str, stage: dict) -> str:
     return f"{folder}/{name}.txt"
 
 
-def code_stage_params(doc: dict) -> list[str]:
-    """The params keys the code stage reads: every key that picks a stage's back end or tasks."""
-    return sorted({k for n, s in doc["stages"].items() if n != CODE_STAGE for k in read_params(s)})
-
-
 CODE_FOLDERS = ["mimicgen_pipe", "envs", "stages", "scripts/dvc_deps.py"]
+# the code stage's command after its params check (mimicgen-pipe check)
+MANIFESTS_CMD = "python scripts/dvc_deps.py --manifests"
 
 
 def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
@@ -285,9 +271,14 @@ def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
     folders = [Path(os.path.relpath(REPO / f, wdir)).as_posix() for f in CODE_FOLDERS]
     if sorted(code.get("deps") or []) != sorted(folders):
         out.append(f"{rel}: {CODE_STAGE}: deps {code.get('deps')}, should be {folders}")
-    keys = sorted(k for item in code.get("params") or [] for k in _keys(item))
-    if keys != code_stage_params(doc):
-        out.append(f"{rel}: {CODE_STAGE}: params {keys}, should be {code_stage_params(doc)}")
+    params_file = Path(os.path.relpath(params_path(pipeline), wdir)).as_posix()
+    if code.get("params") != [{params_file: None}]:
+        out.append(f"{rel}: {CODE_STAGE}: params {code.get('params')}, should be the whole "
+                   f"params file: [{params_file}:]")  # fmt: skip
+    manifests_cmd = Path(os.path.relpath(pipeline, wdir)).as_posix()
+    cmd = f"mimicgen-pipe check --params {params_file} && {MANIFESTS_CMD} {manifests_cmd}"
+    if " ".join(str(code.get("cmd", "")).split()) != cmd:
+        out.append(f"{rel}: {CODE_STAGE}: cmd {code.get('cmd')!r}, should be {cmd!r}")
     for name, stage in doc["stages"].items():
         if name == CODE_STAGE:
             continue
@@ -298,11 +289,6 @@ def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
         if files:
             out.append(f"{rel}: {name}: lists code files its manifest holds: {files}")
     return out
-
-
-def _keys(item: str | dict) -> list[str]:
-    """The keys of one ``params`` entry: a key, or ``{file: [keys]}``."""
-    return [item] if isinstance(item, str) else [k for keys in item.values() for k in keys]
 
 
 def main(argv: list[str] | None = None) -> int:

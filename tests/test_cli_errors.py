@@ -290,3 +290,29 @@ def test_a_params_typo_stops_before_the_stages_libraries_load(tmp_path, monkeypa
     assert res.stdout.split(None, 1) == ["2", "[]\n"], res.stdout + res.stderr
     assert "params.yaml: generate.action_nois: unknown key" in res.stderr
     assert outputs(tmp_path) == []
+
+
+@pytest.mark.parametrize(
+    "params_file",
+    ["params.yaml", "quickstart/params.yaml", "suite/params.yaml", "transit/params.yaml",
+     "transfer/params.yaml"],
+)  # fmt: skip
+def test_check_passes_every_pipelines_params(params_file):
+    res = cli("check", "--params", params_file, cwd=REPO)
+    assert res.stdout.strip() == f"check: {params_file}: valid"
+
+
+@pytest.mark.parametrize(
+    "source,expected",
+    [
+        ("{from_file: input}", "source.from_file: input: expected a regular file"),
+        ("{from_file: input/fifo.h5}", "source.from_file: input/fifo.h5: expected a regular file"),
+        ("{from_file: input/none.h5}", "source.from_file: input/none.h5: no such file"),
+        ("{num_demoz: 3}", "source.num_demoz: unknown key"),
+    ],
+)
+def test_check_refuses_a_bad_params_file_or_a_file_it_names(tmp_path, source, expected):
+    (tmp_path / "input").mkdir()
+    os.mkfifo(tmp_path / "input/fifo.h5")  # a reader would block on it for ever
+    msg = run_bad(tmp_path, "check", params=f"task: stack_cube\nsource: {source}\n")
+    assert f"mimicgen-pipe check: error: params.yaml: {expected}" in msg

@@ -44,10 +44,13 @@ def rerun(
     """Stages `dvc exp run <pipeline> -S <params_file>:key=...` re-runs: those listing ``key``
     (or its section) as a param of that file, and everything downstream of them."""
     pool = considered(graph, pipeline)
+    # the code stage checks the whole params file on any edit, but writes the same manifests,
+    # so nothing downstream of it re-runs for a params edit
     changed = {
         s
         for s in pool
-        if any(key == n or key.startswith(n + ".") for n in param_names(s, params_file))
+        if s.addressing != "code_deps"
+        and any(key == n or key.startswith(n + ".") for n in param_names(s, params_file))
     }
     hit = changed.union(*(nx.ancestors(graph, s) & pool for s in changed))
     return {s.addressing for s in hit}

@@ -81,7 +81,25 @@ def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(tmp_path):
 
     with h5py.File(q / "data/export/stack_cube_D0/demos.hdf5") as f:
         assert len(f["data"]) == ran["successes"] == 20
+    check_a_typo_loses_nothing(work, env)
     check_experiments_and_compare(work, env)
+
+
+def check_a_typo_loses_nothing(work: Path, env: dict[str, str]) -> None:
+    """A typo in the quickstart's params, then `dvc repro`: the pipeline's first stage refuses
+    it in one line before DVC removes any stage's outputs, so every store, export and
+    tracked metrics file is as the run left it."""
+    q = work / "quickstart"
+    params = q / "params.yaml"
+    before = {p: tree_digest(p) for p in (q / "data", q / "metrics", q / "code_deps")}
+    good = params.read_text()
+    params.write_text(good.replace("action_noise:", "action_nois:"))
+    res = subprocess.run(["dvc", "repro", "quickstart/dvc.yaml"], cwd=work, env=env,
+                         capture_output=True, text=True)  # fmt: skip
+    params.write_text(good)
+    assert res.returncode != 0
+    assert "generate.action_nois: unknown key" in res.stdout + res.stderr
+    assert {p: tree_digest(p) for p in before} == before
 
 
 def same_rate_within_noise(percent: float, trials: int, committed: float) -> bool:
@@ -124,7 +142,7 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     q = "quickstart/params.yaml"
     out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "noise02",
               "-S", f"{q}:generate.action_noise=0.02")  # fmt: skip
-    assert ran_stages(out) == {"generate@D0", "coverage@D0", "export@D0", "report"}
+    assert ran_stages(out) == {"code_deps", "generate@D0", "coverage@D0", "export@D0", "report"}
     assert "action_noise: 0.02" in (work / q).read_text()
     assert (work / "params.yaml").read_text() == root_params  # not the root's file
     run("git", "checkout", "--", q)
@@ -132,9 +150,9 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
               "-S", f"{q}:coverage.bins=4")  # fmt: skip
     # from the workspace noise02 left: generate runs back to the committed store
     assert (
-        {"coverage@D0", "report"}
+        {"code_deps", "coverage@D0", "report"}
         <= ran_stages(out)
-        <= {"generate@D0", "coverage@D0", "export@D0", "report"}
+        <= {"code_deps", "generate@D0", "coverage@D0", "export@D0", "report"}
     )
     shown = run("mimicgen-pipe", "compare", "--pipeline", "quickstart", "--width", "120")
     lines = shown.splitlines()

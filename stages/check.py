@@ -1,0 +1,41 @@
+"""check: validate a pipeline's whole params file, and the files it names, before any stage
+runs. Each pipeline's first stage runs it on every edit of its params file, so that a typo
+stops `dvc repro` before DVC removes any stage's earlier outputs (DVC deletes a stage's
+outputs before running its command; a stage that then refused its params had lost them)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import stat
+from pathlib import Path
+
+from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.params import Params, load_params
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+
+
+def named_files(params: Params) -> dict[str, str]:
+    """The files a params file names, key -> path (relative to the working directory)."""
+    return {"source.from_file": params.source.from_file} if params.source.from_file else {}
+
+
+def check_named_file(params_file: str, key: str, path: str) -> None:
+    """A file a params key names must exist and be a regular file (not a folder, a FIFO or
+    a device, which a reader would block on or read without end)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        raise InputError(f"{params_file}: {key}: {path}: {exc.strerror.lower()}") from None
+    if not stat.S_ISREG(mode):
+        raise InputError(f"{params_file}: {key}: {path}: expected a regular file")
+
+
+def run(args: argparse.Namespace) -> None:
+    params = load_params(args.params)
+    for key, path in named_files(params).items():
+        check_named_file(args.params, key, path)
+    print(f"check: {Path(args.params)}: valid")
