@@ -3,7 +3,9 @@ for the tests: it runs under this virtualenv's Python, with no framework. Its ``
 JSON file: ``observations`` and ``action_dim`` (what its hello announces), ``meta``, and how
 it misbehaves: ``fail_load`` (a message), ``exit_at`` / ``hang_at`` (the act call, counted
 from 1 over the server's life, at which it exits with status 3 / sleeps). ``log``: a file
-each server appends its pid to when it starts.
+each server appends its pid to when it starts. ``report_env``: names of environment
+variables whose values at the process's start (as its client set them) its hello's
+``meta["env"]`` gives.
 
 Its action: action[i] = the sum of the i-th observation (keys in announced order, cycled),
 plus normal noise of scale 0.01 drawn from a generator seeded at each reset."""
@@ -19,6 +21,8 @@ import numpy as np
 
 from mimicgen_pipe.external import _serve
 
+STARTED_WITH = dict(os.environ)  # before _serve.main sets anything
+
 
 class StandIn:
     def __init__(self, path: str, task: str) -> None:
@@ -33,6 +37,8 @@ class StandIn:
         self.observations = config["observations"]
         self.action_dim = config.get("action_dim", 7)
         self.meta = config.get("meta", {})
+        if config.get("report_env"):
+            self.meta["env"] = {k: STARTED_WITH.get(k) for k in config["report_env"]}
         self.calls = 0
         self.rng = np.random.default_rng(0)
 

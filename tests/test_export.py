@@ -365,17 +365,12 @@ def test_subtask_labels_come_from_subtask_ends_or_term_signals(tmp_path):
     assert exporters.subtask_labels(bare, spec) is None
 
 
-def test_maniskill_trajectory_reads_back_with_maniskills_dataset_class(tmp_path):
-    """ManiSkill's own ManiSkillTrajectoryDataset reads our trajectory file: per step the
-    action, the observation before it (obs/<key>, the store's), the sparse success reward,
-    success, fail and terminated as the replay gives them; each trajectory's obs holds one
-    row more, the replay's observation after the last step; the json's env_kwargs ask for
-    ManiSkill's sparse reward. Replays stand in for the simulator's (no simulator runs)."""
-    from mani_skill.trajectory.dataset import ManiSkillTrajectoryDataset
-
+def fake_replays(store) -> dict:
+    """The ManiSkill exporter's replay arguments for a synthetic store, standing in for the
+    simulator's: each episode's states (one more after its last step), STEP_SUCCESS, zero
+    joint actions, and a last observation one more than the store's last."""
     from mimicgen_pipe.exporters.maniskill import Replayed
 
-    store = synthetic_store(tmp_path / "g.zarr")
     layout = [("actors", "cubeA", 13), ("articulations", "panda", 7)]  # the 20 state values
     replays = []
     for i, (s, e) in enumerate(zip(store.episode_starts, store.episode_ends, strict=True)):
@@ -386,8 +381,21 @@ def test_maniskill_trajectory_reads_back_with_maniskills_dataset_class(tmp_path)
         replays.append(Replayed(states, STEP_SUCCESS[s:e], joint, last))
     env_info = {"env_id": "StackCube-v1", "max_episode_steps": 50,
                 "env_kwargs": {"obs_mode": "none", "control_mode": "pd_ee_delta_pose"}}  # fmt: skip
-    path, _ = exporters.write(store, "maniskill", tmp_path, export_info(store), replays=replays,
-                              layout=layout, env_info=env_info)  # fmt: skip
+    return {"replays": replays, "layout": layout, "env_info": env_info}
+
+
+def test_maniskill_trajectory_reads_back_with_maniskills_dataset_class(tmp_path):
+    """ManiSkill's own ManiSkillTrajectoryDataset reads our trajectory file: per step the
+    action, the observation before it (obs/<key>, the store's), the sparse success reward,
+    success, fail and terminated as the replay gives them; each trajectory's obs holds one
+    row more, the replay's observation after the last step; the json's env_kwargs ask for
+    ManiSkill's sparse reward. Replays stand in for the simulator's (no simulator runs)."""
+    from mani_skill.trajectory.dataset import ManiSkillTrajectoryDataset
+
+    store = synthetic_store(tmp_path / "g.zarr")
+    replays = fake_replays(store)
+    path, _ = exporters.write(store, "maniskill", tmp_path, export_info(store), **replays)
+    replays = replays["replays"]
     ds = ManiSkillTrajectoryDataset(str(path))
     assert len(ds) == sum(LENGTHS)
     np.testing.assert_array_equal(ds.rewards, STEP_SUCCESS.astype(np.float32))

@@ -283,10 +283,9 @@ def test_a_policy_of_an_unknown_kind_is_refused_saying_what_was_expected(tmp_pat
 
 
 def test_a_lerobot_config_naming_another_backbone_is_refused_before_loading(tmp_path):
-    policy = tmp_path / "policy"
-    policy.mkdir()
-    for name in ("model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json"):
-        (policy / name).write_text("{}")
+    from tests.test_no_network import lerobot_folder
+
+    policy = lerobot_folder(tmp_path / "policy")
     for backbone, ok in (("resnet18", True), (None, True), ("get_model", False),
                          ("__builtins__", False)):  # fmt: skip
         (policy / "config.json").write_text(

@@ -30,9 +30,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import h5py
 import numpy as np
 
+from mimicgen_pipe import hdf5
 from mimicgen_pipe.store import EpisodeStore
 
 FILE_NAME = "trajectory.h5"  # and its .json, and the pd_joint_pos copy of both
@@ -103,22 +103,22 @@ def _write_file(
 ) -> None:
     seeds = store.episodes.get("seed", np.full(store.n_episodes, -1))
     episodes = []
-    with h5py.File(path, "w") as f:
+    with hdf5.create(path) as f:
         for i, rep in enumerate(replays):
             joint = control_mode == "pd_joint_pos"
             actions = rep.joint_actions if joint else store.episode(i)["actions"]
-            g = f.create_group(f"traj_{i}")
-            g.create_dataset("actions", data=np.asarray(actions, np.float32))
+            g = hdf5.group(f, f"traj_{i}")
+            hdf5.dataset(g, "actions", data=np.asarray(actions, np.float32))
             for kind, parts in _split_states(rep.states, layout).items():
                 for name, value in parts.items():
-                    g.create_dataset(f"env_states/{kind}/{name}", data=value)
-            g.create_dataset("success", data=rep.success)
-            g.create_dataset("fail", data=np.zeros(len(rep.success), bool))
-            g.create_dataset("rewards", data=rep.success.astype(np.float32))
-            g.create_dataset("terminated", data=rep.success)
-            g.create_dataset("truncated", data=np.zeros(len(rep.success), bool))
+                    hdf5.dataset(g, f"env_states/{kind}/{name}", data=value)
+            hdf5.dataset(g, "success", data=rep.success)
+            hdf5.dataset(g, "fail", data=np.zeros(len(rep.success), bool))
+            hdf5.dataset(g, "rewards", data=rep.success.astype(np.float32))
+            hdf5.dataset(g, "terminated", data=rep.success)
+            hdf5.dataset(g, "truncated", data=np.zeros(len(rep.success), bool))
             for key, rows in _observations(store.episode(i), rep).items():
-                g.create_dataset(f"obs/{key}", data=rows)
+                hdf5.dataset(g, f"obs/{key}", data=rows)
             seed = int(seeds[i])
             episodes.append(
                 {

@@ -54,6 +54,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from mimicgen_pipe import hdf5
 from mimicgen_pipe.camera_calibration import store_calibration
 from mimicgen_pipe.store import EpisodeStore, store_cameras
 from mimicgen_pipe.taskspec import arm_key
@@ -151,13 +152,13 @@ def _write_images(g: h5py.Group, key: str, images: np.ndarray) -> int:
     again); returns the bytes the images take in the file."""
     t = len(images)
     chunks = (min(IMAGE_ROWS_PER_CHUNK, t), *images.shape[1:])
-    obs = g.create_dataset(key, data=images, chunks=chunks, **IMAGE_COMPRESSION)
-    layout = h5py.VirtualLayout(images.shape, images.dtype)
+    obs = hdf5.dataset(g, key, data=images, chunks=chunks, **IMAGE_COMPRESSION)
+    layout = hdf5.virtual_layout(g.file, images.shape, images.dtype)
     source = h5py.VirtualSource(obs)
     if t > 1:
         layout[: t - 1] = source[1:]
     layout[t - 1] = source[t - 1]
-    g.create_virtual_dataset("next_" + key, layout)
+    hdf5.virtual_dataset(g, "next_" + key, layout)
     return int(obs.id.get_storage_size())
 
 
@@ -184,26 +185,27 @@ def _write_obs(g: h5py.Group, ep: Mapping[str, np.ndarray], info) -> None:
     ours = {k.removeprefix("obs/"): v for k, v in ep.items() if k.startswith("obs/")}
     ours = {k: v for k, v in ours.items() if not k.endswith("_image")}
     for key, value in robomimic_obs(ours, info.obs_keys, info.arms).items():
-        g.create_dataset(f"obs/{key}", data=value)
+        hdf5.dataset(g, f"obs/{key}", data=value)
         # the observation after each step; the store has none after the last one, which
         # repeats (robomimic reads next_obs by default, BC ignores it)
-        g.create_dataset(f"next_obs/{key}", data=np.concatenate([value[1:], value[-1:]]))
+        hdf5.dataset(g, f"next_obs/{key}", data=np.concatenate([value[1:], value[-1:]]))
 
 
 def _write_datagen_info(g: h5py.Group, store: EpisodeStore, i: int, info, matrices) -> None:
     """A demo's MimicGen ``datagen_info`` (the poses as 4x4 matrices) and src_demo_inds."""
     ep = store.episode(i)
     s, e = store.episode_starts[i], store.episode_ends[i]
-    info_g = g.create_group("datagen_info")
+    info_g = hdf5.group(g, "datagen_info")
     for key, rows in matrices.items():
-        info_g.create_dataset(key, data=rows[s:e])
+        hdf5.dataset(info_g, key, data=rows[s:e])
     for key in (k for k in store.data if k.startswith("subtask_signals/")):
         name = key.removeprefix("subtask_signals/")
-        info_g.create_dataset(f"subtask_term_signals/{name}", data=ep[key].astype(np.int64))
+        hdf5.dataset(info_g, f"subtask_term_signals/{name}", data=ep[key].astype(np.int64))
     for a in info.label_arms:
-        info_g.create_dataset(arm_key("gripper_action", a), data=ep[arm_key("gripper", a)][:, None])
+        gripper = ep[arm_key("gripper", a)][:, None]
+        hdf5.dataset(info_g, arm_key("gripper_action", a), data=gripper)
     if "source_demo" in store.episodes:
-        g.create_dataset("src_demo_inds", data=store.episodes["source_demo"][i])
+        hdf5.dataset(g, "src_demo_inds", data=store.episodes["source_demo"][i])
 
 
 def write(
@@ -226,23 +228,23 @@ def write(
     labelled = all(v is not None for v in labels.values())
     outcomes = step_outcomes(store, step_success)
     image_bytes = 0
-    with h5py.File(path, "w") as f:
-        data = f.create_group("data")
+    with hdf5.create(path) as f:
+        data = hdf5.group(f, "data")
         for i in range(store.n_episodes):
             ep = store.episode(i)
             s, e = store.episode_starts[i], store.episode_ends[i]
-            g = data.create_group(f"demo_{i}")
+            g = hdf5.group(data, f"demo_{i}")
             g.attrs["num_samples"] = int(e - s)
             g.attrs["success"] = bool(success[i])
             if "seed" in store.episodes:
                 g.attrs["seed"] = int(store.episodes["seed"][i])
-            g.create_dataset("actions", data=ep["actions"])
-            g.create_dataset("states", data=ep["env_state"])
-            g.create_dataset("rewards", data=outcomes["reward"][s:e])
-            g.create_dataset("dones", data=outcomes["done"][s:e].astype(np.int64))
+            hdf5.dataset(g, "actions", data=ep["actions"])
+            hdf5.dataset(g, "states", data=ep["env_state"])
+            hdf5.dataset(g, "rewards", data=outcomes["reward"][s:e])
+            hdf5.dataset(g, "dones", data=outcomes["done"][s:e].astype(np.int64))
             if labelled:
                 for key, rows in labels.items():
-                    g.create_dataset(key, data=rows[s:e])
+                    hdf5.dataset(g, key, data=rows[s:e])
             for key, per_episode in images.items():
                 image_bytes += _write_images(g, key, next(per_episode))
             _write_obs(g, ep, info)
@@ -250,7 +252,8 @@ def write(
         _write_data_attrs(data, store, info, labelled)
         train, valid = split(store.n_episodes, info.valid_fraction)
         for name, idx in (("train", train), ("valid", valid)):
-            f.create_dataset(f"mask/{name}", data=np.array([f"demo_{i}" for i in idx], dtype="S"))
+            names = np.array([f"demo_{i}" for i in idx], dtype="S")
+            hdf5.dataset(f, f"mask/{name}", data=names)
     return {"image_bytes": image_bytes}
 
 

@@ -49,7 +49,14 @@ from typing import Any, NoReturn
 import numpy as np
 
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.external._serve import LENGTH, PROTOCOL, decode, encode, message_size
+from mimicgen_pipe.external._serve import (
+    LENGTH,
+    OFFLINE,
+    PROTOCOL,
+    decode,
+    encode,
+    message_size,
+)
 from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.taskspec import ARM_ACTION_DIM
 
@@ -139,7 +146,8 @@ class ExternalPolicy:
     format), acting in closed loop like mimicgen_pipe.evaluation.ClosedLoopPolicy.
     ``observation`` maps one step's observation to the policy's input arrays (a format's
     ``observation``); ``name`` names the policy in errors. The server starts here and has
-    said hello when this returns; a server that fails, ends or gives no answer in time
+    said hello when this returns, in an environment that keeps the Hugging Face libraries
+    offline (_serve.OFFLINE); a server that fails, ends or gives no answer in time
     (``hello_seconds`` to start, ``act_seconds`` per request) is one InputError with the
     last lines of its stderr, and is stopped."""
 
@@ -160,7 +168,7 @@ class ExternalPolicy:
                 stdout=subprocess.PIPE,
                 stderr=self._stderr,
                 bufsize=0,
-                env=dict(os.environ, PYTHONUNBUFFERED="1"),
+                env=dict(os.environ, PYTHONUNBUFFERED="1", **OFFLINE),
             )
         except OSError as exc:
             self._stderr.close()

@@ -49,6 +49,10 @@ import numpy as np  # noqa: E402
 PROTOCOL = 1
 LENGTH = struct.Struct("<Q")
 HEADER = "header"
+# the Hugging Face libraries' offline switches, set in the server's environment: a policy
+# is its own files, so nothing it loads may come from the Hub (what a format refuses or
+# turns off before loading is the check; these are a second wall)
+OFFLINE = {"HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1"}
 # a message is one step's observation or action: far below this (two 84x84 images: 42 kB);
 # a larger length is garbage on the stream, refused before anything is allocated for it
 MAX_MESSAGE = 256 << 20
@@ -170,6 +174,7 @@ def main(argv: list[str] | None = None, load_policy=None) -> int:
     p.add_argument("--path", required=True, help="the checkpoint file or policy directory")
     p.add_argument("--task", default="", help="the task sentence (LeRobot's task string)")
     args = p.parse_args(argv)
+    os.environ.update(OFFLINE)  # also when run by hand; before any framework is imported
     # the client alone decides what a Ctrl-C in its terminal stops; it then closes our input
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # messages go to the real stdout; everything printed (Python or C) goes to stderr

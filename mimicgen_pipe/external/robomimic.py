@@ -7,7 +7,11 @@ names, on our own keys (``eef_pos``, ``eye_in_hand_image``), is given them too.
 The server loads it with ``torch.load(weights_only=True)``, which rebuilds tensors,
 numbers, strings, lists and dicts alone (robomimic's checkpoints hold nothing else), and
 robomimic's own ``policy_from_checkpoint``: the policy acts as in robomimic's rollouts
-(its RNN context, its action sampling), its random state seeded at each reset.
+(its RNN context, its action sampling), its random state seeded at each reset. Nothing of
+the checkpoint reaches the network: a pretrained initialisation its config asks for (an
+encoder's ``pretrained``) is turned off, since robomimic then loads every weight from the
+checkpoint itself (a strict ``load_state_dict``), and encoders that are pretrained networks
+fetched by another library (R3M, MVP) are not among the classes it may name.
 """
 
 from __future__ import annotations
@@ -22,10 +26,15 @@ import numpy as np
 DESCRIPTION = "robomimic checkpoint .pth file, or a folder of a run's model_epoch_<N>.pth"
 # robomimic builds its encoders from class names in the checkpoint's config, some by eval()
 # (VisualCore's backbone_class and pool_class): a name is accepted only where it is one of
-# robomimic's own classes, so that no string of a checkpoint reaches eval
+# robomimic's own classes, so that no string of a checkpoint reaches eval. R3MConv and
+# MVPConv are left out: they download their pretrained networks (r3m, mvp) when built.
+BACKBONES = ("ResNet18Conv", "ShallowConv")
 CLASSES = {
     "core_class": ("VisualCore", "ScanCore"),
-    "backbone_class": ("ResNet18Conv", "R3MConv", "MVPConv", "ShallowConv"),
+    "backbone_class": BACKBONES,
+    # a config of robomimic < 0.2 names its backbone so; robomimic's update_config makes
+    # it the backbone_class that VisualCore evals
+    "visual_core": BACKBONES,
     "pool_class": ("SpatialSoftmax", "SpatialMeanPool"),
     "obs_randomizer_class": ("CropRandomizer", "ColorRandomizer", "GaussianNoiseRandomizer"),
 }
@@ -68,7 +77,11 @@ def check_classes(config: object, where: str = "config") -> None:
         items = list(enumerate(config)) if isinstance(config, list) else []
     for key, value in items:
         at = f"{where}.{key}"
-        if isinstance(key, str) and key.endswith("_class") and value is not None:
+        if (
+            isinstance(key, str)
+            and (key.endswith("_class") or key in CLASSES)
+            and value is not None
+        ):
             allowed = CLASSES.get(key)
             if allowed is None or value not in allowed:
                 shown = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
@@ -77,9 +90,25 @@ def check_classes(config: object, where: str = "config") -> None:
         check_classes(value, at)
 
 
+def pretrained_off(config: object) -> object:
+    """``config`` with every true ``*pretrained*`` entry, at any depth (an encoder's
+    ``backbone_kwargs.pretrained``, robomimic < 0.2's ``visual_core_kwargs.pretrained``),
+    made false: torchvision would download the weights, which robomimic then replaces by
+    the checkpoint's own."""
+    if isinstance(config, list):
+        return [pretrained_off(v) for v in config]
+    if not isinstance(config, dict):
+        return config
+    return {
+        k: False if isinstance(k, str) and "pretrained" in k.lower() and v else pretrained_off(v)
+        for k, v in config.items()
+    }
+
+
 def checkpoint_config(ckpt: dict) -> dict:
     """The checkpoint's robomimic config (a JSON object in ``config``), its class names
-    checked (:func:`check_classes`); ValueError naming the key otherwise."""
+    checked (:func:`check_classes`) and its pretrained initialisations off
+    (:func:`pretrained_off`); ValueError naming the key otherwise."""
     try:
         config = json.loads(ckpt["config"])
     except (KeyError, TypeError, json.JSONDecodeError) as exc:
@@ -87,7 +116,7 @@ def checkpoint_config(ckpt: dict) -> dict:
     if not isinstance(config, dict):
         raise ValueError("config: not a JSON object")
     check_classes(config)
-    return config
+    return pretrained_off(config)
 
 
 def observation(obs: dict[str, np.ndarray], obs_keys: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -125,7 +154,9 @@ class RobomimicPolicy:
         # one thread, like the evaluator's workers: its env steps in the other process
         torch.set_num_threads(1)
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
-        checkpoint_config(ckpt)  # before robomimic builds anything from it
+        config = checkpoint_config(ckpt)  # before robomimic builds anything from it
+        if config != json.loads(ckpt["config"]):
+            ckpt["config"] = json.dumps(config)
         self.policy, _ = file_utils.policy_from_checkpoint(
             device=torch.device("cpu"), ckpt_dict=ckpt
         )
