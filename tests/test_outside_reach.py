@@ -102,3 +102,20 @@ def test_a_lock_file_that_is_a_link_is_refused_and_its_target_left_alone(tmp_pat
     os.mkfifo(lock_file(out))  # opening a FIFO must not wait for a writer either
     with pytest.raises(InputError, match=r"\.m\.json\.lock: not a regular file"):
         claim(out)
+
+
+def test_an_output_through_a_link_into_tracked_results_is_refused(tmp_path, monkeypatch):
+    """The repository's tracked output reached through a link that lies outside it."""
+    monkeypatch.delenv("DVC_STAGE", raising=False)
+    repo = tmp_path / "repo"
+    (repo / ".dvc").mkdir(parents=True)
+    (repo / "quickstart/data").mkdir(parents=True)
+    (repo / "quickstart/dvc.yaml").write_text("stages:\n  gen:\n    cmd: x\n")
+    lock = {"stages": {"gen": {"cmd": "x", "outs": [{"path": "data/g.zarr"}]}}}
+    (repo / "quickstart/dvc.lock").write_text(json.dumps(lock))
+    link = tmp_path / "link"
+    link.symlink_to(repo / "quickstart/data")
+    for path in (repo / "quickstart/data/g.zarr", link / "g.zarr"):
+        with pytest.raises(InputError, match=r"g\.zarr: tracked by quickstart/dvc\.yaml"):
+            claim(path)
+    assert os.listdir(repo / "quickstart/data") == []
