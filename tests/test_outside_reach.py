@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mimicgen_pipe import outputs
-from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.errors import InputError, StageError
 from mimicgen_pipe.outputs import claim, journal_of, lock_file, release, store_kind
 from mimicgen_pipe.store import open_store, read_store, write_store
 from tests.test_output_safety import tree_digest, user_files
@@ -119,3 +119,40 @@ def test_an_output_through_a_link_into_tracked_results_is_refused(tmp_path, monk
         with pytest.raises(InputError, match=r"g\.zarr: tracked by quickstart/dvc\.yaml"):
             claim(path)
     assert os.listdir(repo / "quickstart/data") == []
+
+
+ray = pytest.importorskip("ray")
+
+
+class _DeadRay:
+    """Ray's calls as a driver sees them once its raylet has died: each raises Ray's error."""
+
+    def __init__(self, error: Exception) -> None:
+        self.error = error
+
+    def __call__(self, *args: object, **kwargs: object) -> object:
+        raise self.error
+
+
+def test_a_dead_raylet_is_one_line_of_ours_and_the_locks_are_released(tmp_path, monkeypatch):
+    """Ray's own errors (a raylet or worker that died), wherever Ray raises them, become one
+    StageError line, and the claims of the stage are released (no lock file left)."""
+    from mimicgen_pipe.executors import ray as ray_executor
+
+    out = tmp_path / "m.json"
+    died = ray.exceptions.LocalRayletDiedError()
+    calls = {"is_initialized": lambda: True, "put": lambda x: x, "cancel": _DeadRay(died),
+             "cluster_resources": lambda: {"CPU": 2}, "wait": _DeadRay(died)}  # fmt: skip
+    for name, fake in calls.items():
+        monkeypatch.setattr(ray, name, fake)
+    remote = type("Remote", (), {"remote": staticmethod(lambda *a: object())})
+    monkeypatch.setattr(ray, "remote", lambda **kw: lambda fn: remote)
+    with pytest.raises(StageError) as err, outputs.claims():
+        claim(out)
+        assert lock_file(out).exists()
+        for _ in ray_executor.imap_unordered(abs, [(0, 1), (1, 2)], 2, lambda: None):
+            pass
+    message = str(err.value)
+    assert message.startswith("Ray stopped during the stage (LocalRayletDiedError: ")
+    assert "\n" not in message and "Traceback" not in message
+    assert not lock_file(out).exists() and os.listdir(tmp_path) == []
