@@ -14,8 +14,14 @@
   (``.<name>.commit``), then each old output is moved aside and its temporary renamed into
   place, then the journals are removed. A run killed before every journal is in place leaves
   the old set (its temporaries are removed by the next run); one killed after is rolled
-  forward to the new set by the next run or reader of any of its outputs (:func:`recover`).
+  forward to the new set by the next run of the stage (:func:`recover`). Readers never act
+  on a journal: a set whose commit is half done is refused (:func:`check_committed`).
   Outputs of one run also carry one run id that readers compare (:func:`check_same_run`).
+- **Nothing beside an output reaches outside its folder.** A journal is acted on only by
+  the stage holding the lock of every output it names, and only when each name in it is
+  one the writer gives (a temporary or an old output in that output's own folder); journals
+  and lock files are opened without following links, and must be regular files. Anything
+  else is refused with one line, and nothing is moved or removed.
 - **One writer.** A stage claims its outputs first: an exclusive ``flock`` on a
   ``.<name>.lock`` file beside each, held until the stage ends (the kernel drops it when the
   process dies, however it dies), so a second run writing the same outputs stops at once
@@ -37,6 +43,7 @@ import os
 import re
 import shutil
 import signal
+import stat
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -56,6 +63,7 @@ _replace_tracked = False  # the entry point's --replace-tracked, for the stage i
 # commit (1-based), so that tests can stop a real run between any two of them.
 KILL_AT_ENV = "MIMICGEN_PIPE_KILL_AT_COMMIT_OP"
 _commit_ops = 0
+Entry = tuple[Path, Path, Path]  # (temporary, output, old output moved aside) of a commit
 
 
 class OutputBusy(InputError):
@@ -259,7 +267,7 @@ def _op() -> None:
         os.kill(os.getpid(), signal.SIGKILL)
 
 
-def _write_journal(final: Path, entries: Sequence[tuple[Path, Path, Path]]) -> None:
+def _write_journal(final: Path, entries: Sequence[Entry]) -> None:
     """Write the journal beside ``final`` whole or not at all."""
     journal = journal_of(final)
     # named as a temporary of the output, so that a kill mid-write leaves a stale temporary
@@ -273,17 +281,82 @@ def _write_journal(final: Path, entries: Sequence[tuple[Path, Path, Path]]) -> N
     os.replace(tmp, journal)
 
 
-def _read_journal(journal: Path) -> list[tuple[Path, Path, Path]]:
+_JOURNAL_BYTES = 2**20  # journals name a few paths; a larger file is not one
+
+
+def _writer_made(path: Path, final: Path, kind: str) -> bool:
+    """Whether ``path`` is a name :func:`temporary_name` gives ``final`` (``kind``): in
+    the output's own folder, never elsewhere."""
+    pattern = rf"\.{re.escape(final.name)}\.{kind}-[0-9]+-[0-9a-f]{{8}}"
+    return path.parent == final.parent and re.fullmatch(pattern, path.name) is not None
+
+
+def _place(path: Path) -> Path:
+    """``path`` with its folder's links resolved (not its own: an output may be a link)."""
+    return Path(os.path.realpath(path.parent)) / path.name
+
+
+def _open_no_link(path: Path, flags: int, what: str) -> int:
+    """A descriptor of the regular file at ``path``, opened never through a symbolic link
+    (nor waiting on a FIFO): InputError, ending with ``what`` to do, for anything else;
+    OSError for a file that cannot be opened."""
+    fd = None
     try:
-        entries = json.loads(journal.read_text())["commit"]
-        return [(Path(t), Path(f), Path(b)) for t, f, b in entries]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{journal}: not a commit journal ({exc}); remove it by hand") from exc
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o644)
+    except OSError as exc:
+        if exc.errno not in (errno.ELOOP, errno.EISDIR, errno.ENXIO):
+            raise
+    if fd is not None and stat.S_ISREG(os.fstat(fd).st_mode):
+        return fd
+    if fd is not None:
+        os.close(fd)
+    raise InputError(f"{path}: not a regular file (a symbolic link, folder or device); {what}")
 
 
-def _roll_forward(entries: Sequence[tuple[Path, Path, Path]]) -> None:
+def _read_journal(journal: Path, path: Path) -> list[Entry]:
+    """The entries of the journal beside output ``path``, read without following a link,
+    each checked to be what a writer of ``path``'s set makes: a temporary and an old name of
+    an output in that output's own folder, one entry being ``path`` itself. InputError
+    otherwise: nothing a journal names elsewhere is ever acted on."""
+    remove = "remove it if no run of the stage that writes it was stopped while committing"
+    try:
+        with os.fdopen(_open_no_link(journal, os.O_RDONLY, remove), "rb") as f:
+            data = f.read(_JOURNAL_BYTES + 1)
+    except OSError as exc:
+        raise InputError(f"{journal}: cannot read the commit journal ({exc.strerror})") from exc
+    try:
+        if len(data) > _JOURNAL_BYTES:
+            raise ValueError("too large")
+        entries = [(Path(t), Path(f), Path(b)) for t, f, b in json.loads(data)["commit"]]
+        if not all(p.is_absolute() for entry in entries for p in entry):
+            raise ValueError("a path in it is not absolute")
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{journal}: not a commit journal ({exc}); {remove}") from exc
+    ours = all(_writer_made(t, f, "tmp") and _writer_made(b, f, "old") for t, f, b in entries)
+    if not ours or not any(_place(f) == _place(path.absolute()) for _, f, _ in entries):
+        raise InputError(
+            f"{journal}: not a commit journal of {path.name} (it names paths a writer of "
+            f"{path.name} never makes); nothing done: {remove}"
+        )
+    return entries
+
+
+def _unfinished(entries: Sequence[Entry]) -> bool:
+    """Whether a journaled commit must be rolled forward: every journal in place (the commit
+    had begun) and a temporary not yet moved in. With a journal missing, the run was killed
+    writing them (nothing moved yet) or removing them (everything moved): nothing to redo."""
+    finals = [f for _, f, _ in entries]
+    return all(os.path.lexists(journal_of(f)) for f in finals) and any(
+        os.path.lexists(t) for t, _, _ in entries
+    )
+
+
+def _roll_forward(entries: Sequence[Entry]) -> None:
     """Put every temporary of a journaled commit in place (those already moved are skipped),
     then remove the old outputs moved aside. Safe to repeat after a kill at any point."""
+    for tmp, _, _ in entries:  # the writer made files and folders only: a link is not ours
+        if os.path.islink(tmp):
+            raise InputError(f"{tmp}: a symbolic link where a temporary output should be")
     for tmp, final, backup in entries:
         if not os.path.lexists(tmp):
             continue  # moved in already
@@ -315,40 +388,52 @@ def _commit(pairs: Sequence[tuple[Path, Path]]) -> None:
 
 
 def recover(path: str | os.PathLike) -> bool:
-    """Complete a commit of ``path``'s output set that a killed run left journaled, taking
-    the locks of its outputs for the time (OutputBusy when a live run holds one). True when
-    there was one. Readers call it before reading an output; :func:`claim` calls it too."""
-    journal = journal_of(Path(path))
-    if not journal.is_file():
+    """Complete a commit of ``path``'s output set that a killed run left journaled (True
+    when there was one). Only the stage that owns the outputs does this (:func:`claim`):
+    InputError unless this process holds the lock of every output the journal names; the
+    journal itself is checked by :func:`_read_journal`, and nothing is moved before."""
+    path = Path(path)
+    journal = journal_of(path)
+    if not os.path.lexists(journal):
         return False
-    entries = _read_journal(journal)
-    finals = [f for _, f, _ in entries]
-    taken: list[Path] = []
-    try:
-        for f in finals:
-            if lock_file(f) not in _HELD:
-                _HELD[lock_file(f)] = _acquire(f)
-                taken.append(lock_file(f))
-        if journal.is_file():  # not completed meanwhile by the run that held a lock
-            with interrupts.deferred():
-                # every journal in place: the commit had begun, and any member leads here;
-                # some missing: the run was killed writing them (nothing moved yet) or
-                # removing them (everything moved): either way there is nothing to redo
-                if all(journal_of(f).is_file() for f in finals):
-                    _roll_forward(entries)
-                for f in finals:
-                    with contextlib.suppress(FileNotFoundError):
-                        journal_of(f).unlink()
-    finally:
-        release(taken)
+    entries = _read_journal(journal, path)
+    held = {_place(lock.absolute()) for lock in _HELD}
+    for _, final, _ in entries:
+        if _place(lock_file(final)) not in held:
+            raise InputError(
+                f"{journal}: a stopped commit of {path} names {final}, which this run does "
+                "not write; re-run the stage with the outputs it was given then, or remove "
+                "the journal if no such run was stopped"
+            )
+    with interrupts.deferred():
+        if _unfinished(entries):
+            _roll_forward(entries)
+        for _, final, _ in entries:
+            with contextlib.suppress(FileNotFoundError):
+                journal_of(final).unlink()
     return True
 
 
-def recover_in(folder: str | os.PathLike) -> None:
-    """:func:`recover` every output in ``folder`` that has a pending commit (for readers of
-    a whole folder of outputs, such as the report)."""
+def check_committed(path: str | os.PathLike) -> None:
+    """For readers, before reading output ``path``: InputError when a commit of its output
+    set was stopped half done (readers never act on a journal; the stage that writes the
+    set completes it when it runs again) or when the journal beside it is not one a writer
+    of it made. A journal left from a commit that had completed is no obstacle."""
+    path = Path(path)
+    journal = journal_of(path)
+    if os.path.lexists(journal) and _unfinished(_read_journal(journal, path)):
+        raise InputError(
+            f"{path}: the run that wrote it was stopped while putting its outputs in place "
+            f"(journal {journal}); run that stage again, which completes the commit first"
+            f"{pipelines.made_by(path)}"
+        )
+
+
+def check_committed_in(folder: str | os.PathLike) -> None:
+    """:func:`check_committed` for every output in ``folder`` that has a journal (for
+    readers of a whole folder of outputs, such as the report)."""
     for journal in sorted(Path(folder).glob(".*.commit")):
-        recover(journal.with_name(journal.name[1 : -len(".commit")]))
+        check_committed(journal.with_name(journal.name[1 : -len(".commit")]))
 
 
 def _disk_error(exc: OSError, path: Path, tmps: Sequence[Path]) -> InputError | None:
@@ -508,8 +593,8 @@ def _acquire(path: Path) -> int:
     one at that name (else a third process may lock a new file there) and retry if not."""
     lock = lock_file(path)
     for _ in range(20):
-        try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:  # never through a link: the pid would overwrite the file it points to
+            fd = _open_no_link(lock, os.O_RDWR | os.O_CREAT, "remove it or write elsewhere")
         except OSError as exc:
             raise InputError(f"{path}: cannot write in {lock.parent} ({exc.strerror})") from exc
         try:
@@ -522,7 +607,7 @@ def _acquire(path: Path) -> int:
                 f"it to finish or stop it (lock {lock})"
             ) from None
         try:
-            st, now = os.fstat(fd), os.stat(lock)
+            st, now = os.fstat(fd), os.lstat(lock)
             same = (st.st_dev, st.st_ino) == (now.st_dev, now.st_ino)
         except FileNotFoundError:
             same = False

@@ -91,18 +91,26 @@ def _pipeline_files(root: Path) -> list[Path]:
 
 def owner(path: str | os.PathLike) -> Owner | None:
     """The stage whose tracked output ``path`` is, lies inside or holds (a folder that
-    holds tracked files), or None (also outside any DVC repository)."""
-    root = repository_root(path)
-    if root is None:
-        return None
+    holds tracked files), or None (also outside any DVC repository). Links are followed: a
+    path through a link into a repository's tracked results is one of them."""
+    real = Path(os.path.realpath(path))
+    # the repository above the path as written, and above where its links lead
+    for root in dict.fromkeys(r for r in (repository_root(path), repository_root(real)) if r):
+        found = _owner_in(root, real)
+        if found is not None:
+            return found
+    return None
+
+
+def _owner_in(root: Path, p: Path) -> Owner | None:
+    """:func:`owner` of the resolved path ``p`` among the tracked outputs of ``root``."""
     locks = [f.with_name("dvc.lock") for f in _pipeline_files(root)]
     stamp = tuple(f.stat().st_mtime if f.is_file() else 0.0 for f in locks)
     tracked = _tracked(root, stamp)
-    p = Path(os.path.abspath(path)).resolve()
     for candidate in (p, *p.parents):
         if candidate in tracked:
             return tracked[candidate]
-    if p == root:
+    if p == root.resolve():
         return None  # the repository itself is no output
     inside = sorted(t for t in tracked if p in t.parents)
     return tracked[inside[0]] if inside else None

@@ -32,7 +32,7 @@ from zarr.storage import LocalStore
 
 from mimicgen_pipe import pipelines, poses
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.outputs import atomic_directory, recover
+from mimicgen_pipe.outputs import atomic_directory, check_committed
 
 SCHEMA_VERSION = 2  # 2: crc32c on every chunk, every chunk written, attrs.kind
 STORE_KINDS = ("source", "parsed", "generated", "failed")
@@ -533,7 +533,7 @@ def read_store(
     finite float values. Raises InputError naming the path, the array and, for bad values,
     the episode and step."""
     path = Path(path)
-    recover(path)  # a commit of its output set that a killed run left half done
+    check_committed(path)  # never read a set that a killed run left half committed
     groups, attrs = _open_root(path, task, kind)
     arrays = _read_group(path, groups[0], "data/") | _read_group(path, groups[1], "meta/")
     if "meta/episode_ends" not in arrays:
@@ -646,7 +646,7 @@ def open_store(
     Checksums and finite values are checked for what is then read. Memory: the episode
     ends, O(N_episodes)."""
     path = Path(path)
-    recover(path)  # a commit of its output set that a killed run left half done
+    check_committed(path)  # never read a set that a killed run left half committed
     groups, attrs = _open_root(path, task, kind)
     arrays = _members(path, groups[0], "data/") | _members(path, groups[1], "meta/")
     if "meta/episode_ends" not in arrays:

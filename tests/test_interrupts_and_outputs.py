@@ -162,38 +162,37 @@ def test_workers_die_with_a_killed_main_process(work):
 
 @pytest.mark.sim
 def test_one_writer_per_output_set_and_stale_temporaries_removed(work):
-    """A second generate on the same --out stops (exit 2, one line naming the path) before
-    the first ends, and the first completes; the first removes what killed runs left beside
-    its outputs (and nothing else), and its kept store, failed store and metrics carry one
-    run id."""
+    """While another process holds the lock of one output (here this test, through the
+    library's own claim: no race between two runs), a generate on the same --out stops
+    (exit 2, one line naming the path and the holder's pid) before any attempt; once it is
+    let go, a run completes, removes what killed runs left beside its outputs (and nothing
+    else), and its kept store, failed store and metrics carry one run id."""
     gen = work / "data/locked"
-    gen.mkdir(parents=True)
-    (gen / ".stack_D0.zarr.tmp-abc").mkdir()
-    (gen / ".stack_D0.zarr.tmp-abc" / "zarr.json").write_text("{}")
-    (gen / "..stack_D0_failed.zarr.tmp-1-a.tmp-2-b").mkdir()  # a nested writer's temporary
-    (gen / ".stack_D0.zarr.old-1-c").mkdir()
-    (gen / ".other.zarr.tmp-abc").mkdir()  # another output's: not ours to remove
-    (work / "metrics").mkdir(exist_ok=True)
-    (work / "metrics/.locked.json.tmp-1-d").write_text("{")
     args = ["--out", "data/locked/stack_D0.zarr", "--metrics", "metrics/locked.json"]
-    first = start(work, *GENERATE, "--attempts", "16", *args)
-    t0 = time.monotonic()
-    while not (gen / ".stack_D0.zarr.lock").exists():
-        assert first.poll() is None and time.monotonic() - t0 < 60, first.communicate()[1]
-        time.sleep(0.05)
-    second = cli(*GENERATE, "--attempts", "4", *args, cwd=work, check=False)
-    # refused while the first still runs and before any attempt of its own: no progress bar
-    # (a wall-clock bound instead is overrun on a loaded 2-core machine by start-up alone)
-    assert first.poll() is None, "the first run ended before the second was refused"
+    claim(gen / "stack_D0.zarr")  # held by this process until released below
+    try:
+        # the temporaries killed runs left (after claiming: claim removes them too)
+        (gen / ".stack_D0.zarr.tmp-abc").mkdir()
+        (gen / ".stack_D0.zarr.tmp-abc" / "zarr.json").write_text("{}")
+        (gen / "..stack_D0_failed.zarr.tmp-1-a.tmp-2-b").mkdir()  # a nested writer's
+        (gen / ".stack_D0.zarr.old-1-c").mkdir()
+        (gen / ".other.zarr.tmp-abc").mkdir()  # another output's: not ours to remove
+        (work / "metrics").mkdir(exist_ok=True)
+        (work / "metrics/.locked.json.tmp-1-d").write_text("{")
+        second = cli(*GENERATE, "--attempts", "4", *args, cwd=work, check=False)
+        assert lock_file(gen / "stack_D0.zarr").is_file(), "the holder's lock stays"
+    finally:
+        release([lock_file(gen / "stack_D0.zarr")])
+    # refused before any attempt of its own: no progress bar
     assert second.returncode == 2, second.stderr[-3000:]
     assert not any("|" in ln for ln in second.stderr.splitlines()), second.stderr[-3000:]
     lines = own_lines(second.stderr)
     assert len(lines) == 1 and "Traceback" not in second.stderr, second.stderr[-3000:]
     assert lines[0].startswith("mimicgen-pipe generate: error: data/locked/stack_D0.zarr: ")
-    assert f"another mimicgen-pipe run (pid {first.pid}) is writing this output" in lines[0]
-    _, err = first.communicate(timeout=300)
-    assert first.returncode == 0, err[-3000:]
-    assert any("|" in ln for ln in err.splitlines()), "a run that generates shows its bar"
+    assert f"another mimicgen-pipe run (pid {os.getpid()}) is writing this output" in lines[0]
+    first = cli(*GENERATE, "--attempts", "16", *args, cwd=work, check=False)
+    assert first.returncode == 0, first.stderr[-3000:]
+    assert any("|" in ln for ln in first.stderr.splitlines()), "a run that generates shows its bar"
     assert sorted(p.name for p in gen.iterdir()) == [
         ".other.zarr.tmp-abc",
         "stack_D0.zarr",

@@ -18,6 +18,7 @@ driver without a token, and a cluster that refuses this driver's token, each wit
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -28,7 +29,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
-from mimicgen_pipe import arithmetic
+from mimicgen_pipe import arithmetic, outputs
 from mimicgen_pipe.errors import InputError, StageError
 from mimicgen_pipe.interrupts import deferred
 
@@ -242,6 +243,30 @@ def _connect(workers: int, address: str | None) -> bool:
     return True
 
 
+def _stage_error(err: Exception) -> StageError:
+    """One line of ours for Ray's own failure (a raylet, node or worker that died), with the
+    first line of Ray's message."""
+    first = (str(err).strip().splitlines() or [""])[0][:200]
+    return StageError(f"Ray stopped during the stage ({type(err).__name__}: {first})")
+
+
+@contextlib.contextmanager
+def _ray_failures() -> Iterator[None]:
+    """Around Ray's calls: a task's own exception is raised as itself, any other error of
+    Ray's (from a submission, a wait, a result or the teardown) as :func:`_stage_error`.
+    After such a failure the stage's output locks are let go at once, before Ray is torn
+    down: nothing Ray does while it stops can leave them behind."""
+    import ray
+
+    try:
+        yield
+    except ray.exceptions.RayTaskError as err:  # the worker's own exception
+        raise err.as_instanceof_cause() from None
+    except ray.exceptions.RayError as err:
+        outputs.release()
+        raise _stage_error(err) from None
+
+
 def imap_unordered(
     fn: Callable[[T], R],
     tasks: list[tuple[int, T]],
@@ -269,33 +294,29 @@ def imap_unordered(
     try:
         with deferred():
             started = _connect(workers, target)
-            remote = ray.remote(num_cpus=1, max_retries=RETRIES)(_run)
-            setup = ray.put((uuid.uuid4().hex, initializer, initargs))
-            cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
-        queue = iter(tasks)
-        while True:
+        with _ray_failures():
             with deferred():
-                for i, task in queue:
-                    pending[remote.remote(setup, fn, task)] = i
-                    if len(pending) >= IN_FLIGHT_PER_CPU * cpus:
-                        break
-                if not pending:
-                    return
-                try:
+                remote = ray.remote(num_cpus=1, max_retries=RETRIES)(_run)
+                setup = ray.put((uuid.uuid4().hex, initializer, initargs))
+                cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+            queue = iter(tasks)
+            while True:
+                with deferred():
+                    for i, task in queue:
+                        pending[remote.remote(setup, fn, task)] = i
+                        if len(pending) >= IN_FLIGHT_PER_CPU * cpus:
+                            break
+                    if not pending:
+                        return
                     ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_SECONDS)
                     if not ready:
                         continue
                     i = pending.pop(ready[0])
                     result = ray.get(ready[0])
-                except ray.exceptions.RayTaskError as err:  # the worker's own exception
-                    raise err.as_instanceof_cause() from None
-                except ray.exceptions.RayError as err:  # Ray itself: a node or its raylet
-                    first = (str(err).strip().splitlines() or [""])[0][:200]
-                    raise StageError(f"Ray stopped during the stage ({type(err).__name__}: "
-                                     f"{first})") from None  # fmt: skip
-            yield i, result
+                yield i, result
     finally:
-        with deferred():
+        # a Ray that failed may fail again while it stops: that too is one line of ours
+        with deferred(), _ray_failures():
             if started:
                 ray.shutdown()  # ends this driver's job: Ray stops its unfinished tasks
             else:

@@ -12,7 +12,7 @@ from typing import Any
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import GENERATE_PURPOSE, Metrics, read_metrics
-from mimicgen_pipe.outputs import recover_in
+from mimicgen_pipe.outputs import check_committed_in
 from mimicgen_pipe.params import Params, load_params
 
 
@@ -44,7 +44,7 @@ def read_metrics_folder(folder: str | Path) -> MetricsSet:
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: metrics folder not found")
-    recover_in(folder)  # commits that killed runs left half done
+    check_committed_in(folder)  # never read a set that a killed run left half committed
     return MetricsSet(tuple(read_metrics(p) for p in sorted(folder.glob("*.json"))))
 
 
