@@ -10,6 +10,7 @@ from typing import Any
 import yaml
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.plain_files import regular_file
 
 _MERGE_TAG = "tag:yaml.org,2002:merge"
 # what a user's YAML file may hold, counted as its nodes with every alias expanded: a params
@@ -91,13 +92,13 @@ def _one_line(exc: yaml.YAMLError) -> str:
     return " ".join(str(exc).split())
 
 
-def read_text(path: str | Path, what: str) -> str:
+def read_text(path: str | Path, what: str, limit: int | None = None) -> str:
     """The UTF-8 text of a user's file; InputError naming the file when it is missing
-    (``what`` says what was expected there), unreadable (e.g. a folder) or not UTF-8 text
-    (e.g. a binary file given by mistake)."""
+    (``what`` says what was expected there), not a regular file (a folder, a FIFO, a
+    device), larger than ``limit`` bytes, unreadable or not UTF-8 text (e.g. a binary file
+    given by mistake)."""
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: {what} not found")
+    regular_file(path, what, limit)
     try:
         data = path.read_bytes()
     except OSError as exc:

@@ -267,8 +267,9 @@ def check_source_attrs(
     attrs: Mapping[str, Any], path: Path, backend: str, spec: TaskSpec, control: tuple[str, int]
 ) -> None:
     """InputError naming the store and attribute where the parsed store at ``path`` was not
-    recorded on ``backend`` with its ``control`` (mode, rate [Hz]) and ``spec``'s objects:
-    these attributes shape the data, and the generated store records them."""
+    recorded on ``backend`` with its ``control`` (mode, rate [Hz]), ``spec``'s objects and
+    one of the back end's robots: these attributes shape the data, and the generated store
+    records them."""
     expected = {
         "backend": backend,
         "control_mode": control[0],
@@ -281,6 +282,13 @@ def check_source_attrs(
                 f"{path}: attrs.{key} is {attrs.get(key)!r}, expected {want!r} (its demos were "
                 f"not recorded for {spec.name} on {backend}; re-run the stages that made it)"
             )
+    robot = attrs.get("robot")  # recorded as the generated stores' source_robot
+    known = envs.backend_package(backend).ROBOTS
+    if not isinstance(robot, str) or robot not in known:
+        raise InputError(
+            f"{path}: attrs.robot is {robot!r}, expected a robot of {backend} "
+            f"({', '.join(known)}); re-run the stages that made it"
+        )
 
 
 def generation_config(params: Params) -> GenerationConfig:

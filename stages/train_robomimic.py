@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from mimicgen_pipe import robomimic_source
 from mimicgen_pipe.errors import InputError, StageError
 from mimicgen_pipe.external import DEFAULT_PYTHON, _robomimic_train, check_python, format_module
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
@@ -115,8 +116,8 @@ def run(args: argparse.Namespace) -> None:
         raise InputError(f"train.profile {params.train.profile!r}: an image profile; expected a "
                          "low-dim one")  # fmt: skip
     dataset, out, normalize = Path(args.dataset), Path(args.out), args.obs == "normalized"
-    if not dataset.is_file():
-        raise InputError(f"--dataset {dataset}: no such file (a robomimic export's demos.hdf5)")
+    # checked here, in our process: robomimic would follow the file's links to other files
+    robomimic_source.check_training_file(dataset)
     try:
         base = json.loads(Path(args.config).read_text())
     except (OSError, json.JSONDecodeError) as exc:

@@ -19,6 +19,7 @@ import numpy as np
 
 from envs import load_task
 from envs.maniskill.tasks import ManiSkillTask
+from mimicgen_pipe import plain_files
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.yamlfile import read_text
 
@@ -61,9 +62,10 @@ def _short(value: object) -> str:
 def read_trajectory_meta(meta_path: Path) -> tuple[dict, list[tuple[int, int]]]:
     """The ``.json`` beside a trajectory file: its env_info, and (episode_id, reset seed) of
     every episode in file order (seed -1 when it has none). Raises InputError naming the
-    file and key when the file is not UTF-8 JSON, not an object, or an episode's id or seed
-    is missing, not an integer or given twice."""
-    text = read_text(meta_path, "trajectory .json")
+    file and key when the file is not a regular file of at most plain_files.JSON_LIMIT
+    bytes of UTF-8 JSON, not an object, or an episode's id or seed is missing, not an
+    integer, given twice or (a seed) outside plain_files.SEED_RANGE."""
+    text = read_text(meta_path, "trajectory .json", plain_files.JSON_LIMIT)
     try:
         meta = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -102,6 +104,7 @@ def read_trajectory_meta(meta_path: Path) -> tuple[dict, list[tuple[int, int]]]:
             raise InputError(
                 f"{meta_path}: episodes[{i}].{key}: expected an integer, got {_short(seed)}"
             )
+        plain_files.check_seed(seed, f"{meta_path}: episodes[{i}].{key}")
         seen.add(ep_id)
         episodes.append((ep_id, seed))
     return env_info, episodes
@@ -111,13 +114,13 @@ def read_trajectory_file(
     path: str | os.PathLike, task: str, allow_empty: bool = False
 ) -> list[TrajectoryFileEpisode]:
     """Read and check every episode of a ManiSkill trajectory file before any simulation.
-    Raises InputError naming the file and key for an unreadable or broken .h5 or .json, a
-    wrong control mode or env, a missing key, a wrong action shape or non-finite value, or
-    (unless ``allow_empty``) no episodes."""
+    Raises InputError naming the file and key for an unreadable, broken or not plain .h5
+    or .json (mimicgen_pipe.plain_files), a top-level name other than traj_<n>, a wrong
+    control mode or env, a missing key, a wrong action or state shape or dtype, a
+    non-finite value, or (unless ``allow_empty``) no episodes."""
     path = Path(path)
     meta_path = path.with_suffix(".json")
-    if not path.exists():
-        raise InputError(f"{path}: trajectory file not found")
+    plain_files.regular_file(path, "trajectory file")
     if not meta_path.exists():
         raise InputError(f"{meta_path}: the .json written beside the .h5 is missing")
     env_info, listed = read_trajectory_meta(meta_path)
@@ -133,12 +136,9 @@ def read_trajectory_file(
             f"{meta_path}: env_info.env_id is {env_info.get('env_id')!r}, expected "
             f"{spec.base_env_id!r} for task {task}"
         )
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:  # not HDF5 at all, or cut short (h5py says which)
-        raise InputError(f"{path}: not a readable HDF5 trajectory file ({exc})") from exc
     episodes = []
-    with f:
+    with plain_files.open_hdf5(path, "trajectory file") as f:
+        plain_files.numbered(list(f), "traj_", path, "")
         for ep_id, seed in listed:
             name = f"traj_{ep_id}"
             try:
@@ -152,7 +152,8 @@ def read_trajectory_file(
 
 
 def _read_episode(path: Path, f: h5py.File, name: str, seed: int) -> TrajectoryFileEpisode:
-    """One episode group of a trajectory file, checked (InputError naming the key)."""
+    """One episode group of a trajectory file, checked (InputError naming the key): shapes
+    and dtypes from the file's declarations before anything is read."""
     if not isinstance(f.get(name), h5py.Group):
         raise InputError(f"{path}: {name} listed in the .json but missing")
     g = f[name]
@@ -163,14 +164,15 @@ def _read_episode(path: Path, f: h5py.File, name: str, seed: int) -> TrajectoryF
     ):
         if not isinstance(g.get(key), kind):
             raise InputError(f"{path}: {name}/{key} missing")
+    steps = plain_files.check_float_array(g["actions"], f"{path}: {name}/actions", 7)
     for key in ("env_states/actors", "env_states/articulations"):
         for n, d in g[key].items():
-            if not isinstance(d, h5py.Dataset) or d.ndim != 2 or d.shape[0] < 1:
-                shape = getattr(d, "shape", "a group")
-                raise InputError(f"{path}: {name}/{key}/{n} is {shape}, expected (T + 1, D)")
+            where = f"{path}: {name}/{key}/{n}"
+            if not isinstance(d, h5py.Dataset):
+                raise InputError(f"{where} is a group, expected a dataset ({steps + 1}, D)")
+            if plain_files.check_float_array(d, where) != steps + 1:
+                raise InputError(f"{where} has shape {d.shape}, expected ({steps + 1}, D)")
     actions = np.asarray(g["actions"], dtype=np.float32)
-    if actions.ndim != 2 or actions.shape[1] != 7 or len(actions) == 0:
-        raise InputError(f"{path}: {name}/actions has shape {actions.shape}, expected (T, 7)")
     state = _initial_state(g["env_states"])
     flat = [actions] + [v for d in state.values() for v in d.values()]
     if not all(np.isfinite(a).all() for a in flat):
@@ -308,25 +310,44 @@ def _plan_child(
     return f"{kept} {failed}"
 
 
-def initial_state(env, episode: TrajectoryFileEpisode) -> np.ndarray:
-    """The env's flat state for an episode's first step. A file recorded with another
+def state_for_env(env, episode: TrajectoryFileEpisode, path: str | os.PathLike) -> dict:
+    """An episode's first state dict with the names and widths of ``env``'s state dict:
+    InputError naming the file ``path``, the episode and what was expected for an actor or
+    articulation the env has not, or a state of another width. A file recorded with another
     Panda variant (e.g. panda_wristcam: same arm, plus a camera) is mapped onto this env's
-    robot when the articulation state has the same size."""
+    robot when the articulation state has the same size. Parts of the env the file does
+    not name keep their state."""
+    # as trajectory.state_layout reads it (that module brings the exporters in)
+    env_state = env.unwrapped.get_state_dict()
+    widths = {(k, n): int(v.shape[-1]) for k in ("actors", "articulations")
+              for n, v in env_state[k].items()}  # fmt: skip
+    robot = env.unwrapped.agent.robot.name
+    arts = episode.initial_state["articulations"]
+    rename = {n: robot for n in arts} if robot not in arts and len(arts) == 1 else {}
+    out: dict = {"actors": {}, "articulations": {}}
+    for kind, parts in episode.initial_state.items():
+        for name, value in parts.items():
+            where = f"{path}: {episode.name}/env_states/{kind}/{name}"
+            key = (kind, rename.get(name, name))
+            if key not in widths:
+                known = ", ".join(n for k, n in widths if k == kind)
+                raise InputError(
+                    f"{where}: the {env.spec.name} scene with {robot!r} has no such "
+                    f"{kind[:-1]}; expected one of: {known}"
+                )
+            if value.shape[-1] != widths[key]:
+                raise InputError(
+                    f"{where}: {value.shape[-1]} values per step, expected {widths[key]} "
+                    f"({key[1]} in the {env.spec.name} scene)"
+                )
+            out[kind][key[1]] = value
+    return out
+
+
+def initial_state(env, state: dict) -> np.ndarray:
+    """The env's flat state once ``state`` (state_for_env's) is set."""
     import torch
 
-    state = {k: dict(v) for k, v in episode.initial_state.items()}
-    robot = env.unwrapped.agent.robot.name
-    arts = state["articulations"]
-    if robot not in arts and len(arts) == 1:
-        ((name, value),) = arts.items()
-        expected = env.unwrapped.agent.robot.get_state().shape[-1]
-        if value.shape[-1] != expected:
-            raise InputError(
-                f"{episode.name}: articulation {name!r} has state size {value.shape[-1]}, "
-                f"expected {expected} for robot {robot!r}"
-            )
-        arts = {robot: value}
-    state["articulations"] = arts
     env.set_state_dict({k: {n: torch.as_tensor(v) for n, v in d.items()} for k, d in state.items()})
     return env.get_state()
 
@@ -337,11 +358,14 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     ManiSkill's converter could not turn into pd_ee_delta_pose), and the seeds tried."""
     from mimicgen_pipe.contracts import SourceEpisode
 
-    def episodes(eps: list[TrajectoryFileEpisode]) -> list:
-        return [SourceEpisode(ep.seed, initial_state(env, ep), ep.actions) for ep in eps]
+    def episodes(eps: list[TrajectoryFileEpisode], path: str | os.PathLike) -> list:
+        states = [state_for_env(env, ep, path) for ep in eps]  # every one checked first
+        return [SourceEpisode(ep.seed, initial_state(env, s), ep.actions)
+                for ep, s in zip(eps, states, strict=True)]  # fmt: skip
 
     if from_file is not None:
-        return episodes(read_trajectory_file(from_file, env.spec.name)[:num_demos]), 0, 0
+        eps = read_trajectory_file(from_file, env.spec.name)[:num_demos]
+        return episodes(eps, from_file), 0, 0
     traj_file, planned, failed = run_motion_planner(
         env.spec.name, env.agent_uid, num_demos, seed, work_dir, 10 * num_demos
     )
@@ -352,8 +376,8 @@ def source_episodes(env, num_demos: int, seed: int, from_file: str | None, work_
     # uninitialised action at each join: such an episode is not its seed's demo (and is not
     # the same from one run to the next), so it is dropped as a failed conversion
     starts = planned_initial_states(work_dir / "planned.h5")
-    out = episodes([ep for ep in converted if _same_state(ep.initial_state, starts[ep.seed])])
-    return out, failed + planned - len(out), planned + failed
+    kept = [ep for ep in converted if _same_state(ep.initial_state, starts[ep.seed])]
+    return episodes(kept, traj_file), failed + planned - len(kept), planned + failed
 
 
 def planned_initial_states(path: Path) -> dict[int, dict]:
