@@ -47,6 +47,7 @@ import numpy as np
 
 from mimicgen_pipe import interrupts, pipelines
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.jsonfile import read_json
 
 _TEMP_KINDS = ("tmp", "old")  # .<name>.tmp-* being written, .<name>.old-* being replaced
 _staging = 0  # >0 while an output set writes its temporaries
@@ -83,8 +84,8 @@ def _json_object(path: Path) -> str | None:
     if path.stat().st_size > _MAX_SNIFF:
         return "is too large for a metrics file"
     try:
-        value = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError):
+        value = read_json(path, "metrics file", _MAX_SNIFF)
+    except InputError:
         return "is not JSON"
     return None if isinstance(value, dict) else "is JSON but not an object"
 
@@ -117,8 +118,8 @@ def store_kind(*kinds: str) -> OutputKind:
         if not path.is_dir() or not meta.is_file():
             return "is not a Zarr store"
         try:
-            attrs = json.loads(meta.read_text(encoding="utf-8")).get("attributes", {})
-        except (UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+            attrs = read_json(meta, "zarr.json").get("attributes", {})
+        except (InputError, AttributeError):
             return "is not a Zarr store"
         kind = attrs.get("kind") if isinstance(attrs, dict) else None
         if kind is None or (kinds and kind not in kinds):
@@ -275,9 +276,9 @@ def _write_journal(final: Path, entries: Sequence[tuple[Path, Path, Path]]) -> N
 
 def _read_journal(journal: Path) -> list[tuple[Path, Path, Path]]:
     try:
-        entries = json.loads(journal.read_text())["commit"]
+        entries = read_json(journal, "commit journal")["commit"]
         return [(Path(t), Path(f), Path(b)) for t, f, b in entries]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (InputError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{journal}: not a commit journal ({exc}); remove it by hand") from exc
 
 

@@ -4,6 +4,7 @@ failure is one InputError line naming the file and, where YAML knows it, the lin
 
 from __future__ import annotations
 
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -91,17 +92,37 @@ def _one_line(exc: yaml.YAMLError) -> str:
     return " ".join(str(exc).split())
 
 
-def read_text(path: str | Path, what: str) -> str:
+# a file a user gives is read whole: larger than this, it is not one of ours (a params file
+# is a few kB, a metrics file or a trajectory's JSON a few MB at most)
+MAX_BYTES = 64 << 20
+
+
+def read_text(path: str | Path, what: str, max_bytes: int = MAX_BYTES) -> str:
     """The UTF-8 text of a user's file; InputError naming the file when it is missing
-    (``what`` says what was expected there), unreadable (e.g. a folder) or not UTF-8 text
-    (e.g. a binary file given by mistake)."""
+    (``what`` says what was expected there), not a regular file (a folder, a device such as
+    /dev/zero, a pipe), larger than ``max_bytes``, unreadable or not UTF-8 text (e.g. a
+    binary file given by mistake)."""
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: {what} not found")
     try:
-        data = path.read_bytes()
+        info = path.stat()
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from exc
+    if not stat.S_ISREG(info.st_mode):
+        kind = "a folder" if stat.S_ISDIR(info.st_mode) else "not a regular file"
+        raise InputError(f"{path}: cannot read the {what} (it is {kind})")
+    if info.st_size > max_bytes:
+        raise InputError(
+            f"{path}: {info.st_size} bytes, more than the {max_bytes} a {what} may have"
+        )
+    try:
+        with path.open("rb") as f:
+            data = f.read(max_bytes + 1)  # a file that grew since: still bounded
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from exc
+    if len(data) > max_bytes:
+        raise InputError(f"{path}: more than the {max_bytes} bytes a {what} may have")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -45,6 +45,8 @@ def why_not(path: Path) -> str | None:
         config = json.loads((path / "config.json").read_text())
     except (ValueError, UnicodeDecodeError) as exc:
         return f"{path}/config.json: not JSON ({exc})"
+    except RecursionError:  # json recurses once per level of nesting
+        return f"{path}/config.json: JSON nested too deep for a policy config"
     if not isinstance(config, dict) or not isinstance(config.get("type"), str):
         return f"{path}/config.json: names no policy type"
     backbone = config.get("vision_backbone")
