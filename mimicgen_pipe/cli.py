@@ -104,7 +104,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, Any]]:
 def _run_stage(argv: list[str]) -> int:
     parser, modules = build_parser()
     args = parser.parse_args(argv)
+    from stages import check_path_names
+
     try:
+        check_path_names(args)
         with outputs.claims(replace_tracked=args.replace_tracked):
             modules[args.stage].run(args)
     except InputError as exc:
