@@ -23,7 +23,9 @@ from pathlib import Path
 from typing import Any
 
 from mimicgen_pipe.errors import InputError, StageError
+from mimicgen_pipe.exporters.robomimic import check_finite
 from mimicgen_pipe.external import DEFAULT_PYTHON, _robomimic_train, check_python, format_module
+from mimicgen_pipe.jsonfile import read_json
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, directory_kind, output_set
 from mimicgen_pipe.params import Params, TrainProfile
@@ -117,10 +119,10 @@ def run(args: argparse.Namespace) -> None:
     dataset, out, normalize = Path(args.dataset), Path(args.out), args.obs == "normalized"
     if not dataset.is_file():
         raise InputError(f"--dataset {dataset}: no such file (a robomimic export's demos.hdf5)")
-    try:
-        base = json.loads(Path(args.config).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"--config {args.config}: not a readable JSON file ({exc})") from None
+    check_finite(dataset)  # before robomimic reads it
+    base = read_json(args.config, "robomimic config (JSON)")
+    if not isinstance(base, dict):
+        raise InputError(f"--config {args.config}: expected a JSON object (a robomimic config)")
     python = check_python(args.python or str(DEFAULT_PYTHON))
     claim((out, CHECKPOINTS), Path(args.metrics), Path(args.plot), inputs=[dataset])
     with output_set(out, args.metrics, args.plot) as (tmp_out, tmp_metrics, tmp_plot):
