@@ -142,7 +142,10 @@ def _run_stage(argv: list[str]) -> int:
         return 2
     parser, modules = build_parser(only=stage)
     args = parser.parse_args(argv)
+    from stages import check_path_names
+
     try:
+        check_path_names(args)
         with outputs.claims(replace_tracked=args.replace_tracked):
             modules[args.stage].run(args)
     except InputError as exc:

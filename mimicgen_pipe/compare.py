@@ -6,6 +6,7 @@ transposed view, so that many numbers and a few runs fit a terminal."""
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -52,19 +53,36 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def _entries(rows: Any) -> Iterator[dict[str, Any]]:
+def _typed(value: Any, kind: type, where: str) -> Any:
+    """``value`` (empty when null or absent) when it is a ``kind``; else the one-line
+    InputError naming where in dvc exp show's JSON it is."""
+    if value is None:
+        return kind()
+    if not isinstance(value, kind):
+        what = "a mapping" if kind is dict else f"a {kind.__name__}"
+        raise InputError(
+            f"dvc exp show --json: {where}: expected {what}, got a {type(value).__name__}"
+        )
+    return value
+
+
+def _entries(rows: Any, where: str = "") -> Iterator[dict[str, Any]]:
     """Every commit, workspace and experiment entry of dvc exp show's JSON, in its order
     (baselines with their experiments after each)."""
-    for row in rows if isinstance(rows, list) else ():
-        if isinstance(row, dict) and "rev" in row:
+    for i, row in enumerate(_typed(rows, list, where or "the top level")):
+        at = f"{where}[{i}]"
+        row = _typed(row, dict, at)
+        if "rev" in row:
             yield row
-        for exp in (row.get("experiments") or ()) if isinstance(row, dict) else ():
-            yield from _entries(exp.get("revs") if isinstance(exp, dict) else None)
+        for j, exp in enumerate(_typed(row.get("experiments"), list, f"{at}.experiments")):
+            exp = _typed(exp, dict, f"{at}.experiments[{j}]")
+            yield from _entries(exp.get("revs"), f"{at}.experiments[{j}].revs")
 
 
-def _file_data(data: Mapping[str, Any], kind: str, path: str) -> dict[str, Any]:
-    entry = (data.get(kind) or {}).get(path) or {}
-    return entry.get("data") or {} if isinstance(entry, dict) else {}
+def _file_data(data: Mapping[str, Any], kind: str, path: str, where: str) -> dict[str, Any]:
+    files = _typed(data.get(kind), dict, f"{where}.{kind}")
+    entry = _typed(files.get(path), dict, f"{where}.{kind}.{path}")
+    return _typed(entry.get("data"), dict, f"{where}.{kind}.{path}.data")
 
 
 def runs_of(exp_show: Any, pipeline: Pipeline) -> list[Column]:
@@ -76,13 +94,18 @@ def runs_of(exp_show: Any, pipeline: Pipeline) -> list[Column]:
         raise InputError("dvc exp show --json: expected a list of commits")
     runs = []
     for e in _entries(exp_show):
-        data = e.get("data") or {}
-        params = flatten(_file_data(data, "params", pipeline.params))
-        if e.get("error") or not params:
+        where = f"rev {_printable(str(e.get('rev')))}"
+        if e.get("error"):
+            continue
+        data = _typed(e.get("data"), dict, f"{where}.data")
+        params = flatten(_file_data(data, "params", pipeline.params, f"{where}.data"))
+        if not params:
             continue
         numbers = {
             k: float(v)
-            for k, v in flatten(_file_data(data, "metrics", pipeline.summary)).items()
+            for k, v in flatten(
+                _file_data(data, "metrics", pipeline.summary, f"{where}.data")
+            ).items()
             if isinstance(v, (int, float)) and not isinstance(v, bool)
         }
         rev = str(e.get("rev", ""))
@@ -101,8 +124,10 @@ def select(runs: Sequence[Column], names: Sequence[str]) -> list[Column]:
     unknown = [n for n in names if n not in by_name]
     if unknown:
         raise InputError(
-            f"no run named {', '.join(unknown)} in dvc exp show (there are: "
-            f"{', '.join(by_name) or 'none'})"
+            _printable(
+                f"no run named {', '.join(unknown)} in dvc exp show (there are: "
+                f"{', '.join(by_name) or 'none'})"
+            )
         )
     return [by_name[n] for n in names]
 
@@ -143,11 +168,22 @@ def table(runs: Sequence[Column], all_params: bool = False) -> list[list[str]]:
     return rows
 
 
+# C0 controls, DEL and C1 controls: a name from dvc's JSON (an experiment's, a params key)
+# could otherwise move the cursor, recolour or retitle the terminal it is printed on
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def _printable(text: str) -> str:
+    """``text`` with every control character written as its escape (``\\x1b``)."""
+    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+
+
 def render(rows: Sequence[Sequence[str]], width: int = 120) -> str:
     """``rows`` as aligned text no wider than ``width`` where the names allow: the runs'
     columns are split into blocks, each repeating the first (row name) column."""
     if not rows:
         return ""
+    rows = [[_printable(cell) for cell in r] for r in rows]
     name_w = max(len(r[0]) for r in rows)
     col_w = [max(len(r[i]) for r in rows) for i in range(1, len(rows[0]))]
     blocks, current, used = [], [], name_w

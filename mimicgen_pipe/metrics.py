@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.jsonfile import read_json
 from mimicgen_pipe.outputs import temporary_name
 
 STAGES = ("source", "generate", "coverage", "train", "evaluate", "export", "render", "observe")
@@ -89,10 +90,7 @@ def read_metrics(path: str | os.PathLike) -> Metrics:
     """A metrics file a stage wrote; one InputError naming the file when it is not a JSON
     object or lacks identity fields (a file written before they existed: re-run its stage)."""
     path = Path(path)
-    try:
-        raw = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from exc
+    raw = read_json(path, "metrics file")
     if not isinstance(raw, dict):
         raise InputError(f"{path}: expected a flat JSON object")
     missing = [k for k in IDENTITY_FIELDS if k not in raw]

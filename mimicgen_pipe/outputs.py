@@ -54,6 +54,7 @@ import numpy as np
 
 from mimicgen_pipe import interrupts, pipelines
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.jsonfile import parse_json, read_json
 
 _TEMP_KINDS = ("tmp", "old")  # .<name>.tmp-* being written, .<name>.old-* being replaced
 _staging = 0  # >0 while an output set writes its temporaries
@@ -91,8 +92,8 @@ def _json_object(path: Path) -> str | None:
     if path.stat().st_size > _MAX_SNIFF:
         return "is too large for a metrics file"
     try:
-        value = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError):
+        value = read_json(path, "metrics file", _MAX_SNIFF)
+    except InputError:
         return "is not JSON"
     return None if isinstance(value, dict) else "is JSON but not an object"
 
@@ -125,8 +126,8 @@ def store_kind(*kinds: str) -> OutputKind:
         if not path.is_dir() or not meta.is_file():
             return "is not a Zarr store"
         try:
-            attrs = json.loads(meta.read_text(encoding="utf-8")).get("attributes", {})
-        except (UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+            attrs = read_json(meta, "zarr.json").get("attributes", {})
+        except (InputError, AttributeError):
             return "is not a Zarr store"
         kind = attrs.get("kind") if isinstance(attrs, dict) else None
         if kind is None or (kinds and kind not in kinds):
@@ -327,10 +328,11 @@ def _read_journal(journal: Path, path: Path) -> list[Entry]:
     try:
         if len(data) > _JOURNAL_BYTES:
             raise ValueError("too large")
-        entries = [(Path(t), Path(f), Path(b)) for t, f, b in json.loads(data)["commit"]]
+        commit = parse_json(data, str(journal))["commit"]
+        entries = [(Path(t), Path(f), Path(b)) for t, f, b in commit]
         if not all(p.is_absolute() for entry in entries for p in entry):
             raise ValueError("a path in it is not absolute")
-    except (ValueError, KeyError, TypeError) as exc:
+    except (InputError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{journal}: not a commit journal ({exc}); {remove}") from exc
     ours = all(_writer_made(t, f, "tmp") and _writer_made(b, f, "old") for t, f, b in entries)
     if not ours or not any(_place(f) == _place(path.absolute()) for _, f, _ in entries):

@@ -401,12 +401,17 @@ def check_batch_size(num_envs: int) -> None:
         raise InputError(f"batch size num_envs must be an integer >= 1, not {num_envs!r}")
 
 
+def key_range(key: str) -> tuple[float, float] | None:
+    """The (low, high) range the params file allows for ``key``, None where it has none."""
+    return next((r for p, r in _RANGES.items() if fnmatch.fnmatchcase(key, p)), None)
+
+
 def range_error(key: str, value: float) -> str | None:
     """Why ``value`` is outside the range of params key ``key`` (as the params file's
     check says it), or None: for a command-line option that stands in for the key."""
-    for pattern, (lo, hi) in _RANGES.items():
-        if fnmatch.fnmatchcase(key, pattern) and not lo <= value <= hi:
-            return f"expected a value in [{lo}, {hi}] (the range of {key}), got {value!r}"
+    bounds = key_range(key)
+    if bounds is not None and not bounds[0] <= value <= bounds[1]:
+        return f"expected a value in [{bounds[0]}, {bounds[1]}] (the range of {key}), got {value!r}"
     return None
 
 

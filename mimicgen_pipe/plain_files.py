@@ -45,7 +45,9 @@ def regular_file(path: str | os.PathLike, what: str, limit: int | None = None) -
     except OSError as exc:
         raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
     if not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{path}: cannot read the {what}: {_kind(st.st_mode)}, not a regular file")
+        raise InputError(
+            f"{path}: cannot read the {what} (it is {_kind(st.st_mode)}, not a regular file)"
+        )
     if limit is not None and st.st_size > limit:
         raise InputError(f"{path}: {st.st_size} bytes, more than the {limit} a {what} may have")
     return st.st_size

@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import contextlib
 import fnmatch
-import json
+import itertools
+import math
 import os
 import sys
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from zarr.storage import LocalStore
 
 from mimicgen_pipe import pipelines, poses
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.jsonfile import read_json
 from mimicgen_pipe.outputs import atomic_directory, check_committed
 
 SCHEMA_VERSION = 2  # 2: crc32c on every chunk, every chunk written, attrs.kind
@@ -268,13 +270,6 @@ def store_writer(
         yield StoreWriter(data, meta.create_group("episodes"), int(ends[-1]) if len(ends) else 0)
 
 
-def _read_group(path: Path, group: zarr.Group, prefix: str) -> dict[str, np.ndarray]:
-    """Every array under ``group``, keyed by its path in the store; a missing chunk or a
-    chunk whose checksum does not match is an InputError naming the array."""
-    members = _members(path, group, prefix)
-    return {key: _read_array(path, key, member) for key, member in members.items()}
-
-
 def _members(path: Path, group: zarr.Group, prefix: str) -> dict[str, zarr.Array]:
     """Every array under ``group``, unread, keyed by its path in the store, its dtype
     checked (:data:`DTYPE_KINDS`); an InputError naming the zarr.json zarr cannot read."""
@@ -317,12 +312,39 @@ def _check_dtype(path: Path, key: str, dtype: np.dtype) -> None:
         )
 
 
+def _metadata_files(path: Path) -> Iterator[tuple[Path, Any]]:
+    """(zarr.json, its parsed document) of the store at ``path`` and of every group and array
+    under it, each read bounded (:func:`read_json`: size, nesting); a group's member folders
+    are entered, an array's chunks never (a store may declare millions)."""
+    todo = [path]
+    while todo:
+        folder = todo.pop()
+        meta = folder / "zarr.json"
+        try:
+            doc = read_json(meta, "zarr.json (store metadata)")
+        except InputError as exc:
+            why = str(exc).removeprefix(f"{meta}: ")
+            raise InputError(
+                f"{meta}: damaged store metadata ({why}); re-run the stage that wrote it"
+            ) from None
+        yield meta, doc
+        if isinstance(doc, dict) and doc.get("node_type") == "group":
+            members = sorted(p for p in folder.iterdir() if (p / "zarr.json").is_file())
+            todo.extend(reversed(members))
+
+
+def _check_metadata(path: Path) -> None:
+    """Every zarr.json of the store read bounded before zarr parses it (zarr's own JSON
+    parser recurses, and reads a file of any size): one InputError naming the file."""
+    for _meta, _doc in _metadata_files(path):
+        pass
+
+
 def _bad_metadata(path: Path) -> InputError | None:
     """An InputError naming the first zarr.json under ``path`` that zarr cannot read, None
     when zarr reads them all."""
-    for meta in sorted(path.rglob("zarr.json")):
+    for meta, doc in _metadata_files(path):
         try:
-            doc = json.loads(meta.read_text())
             if not isinstance(doc, dict):
                 raise ValueError("not a JSON object")
             if doc.get("node_type") == "array":
@@ -335,6 +357,61 @@ def _bad_metadata(path: Path) -> InputError | None:
                 f"{meta}: damaged store metadata ({what}); re-run the stage that wrote it"
             )
     return None
+
+
+# What one array may declare, checked from its metadata before any of its chunks is listed or
+# read: a zarr.json is a small text file, and zarr would otherwise list every key of a grid
+# of billions of chunks, or decode a chunk to whatever size its header says. A store of
+# 1000 demos of 84x84 images has a few thousand chunks; write_store writes a step array
+# (not images) as one chunk.
+MAX_CHUNKS = 1 << 20
+MAX_CHUNK_BYTES = 4 << 30  # decoded
+
+
+def _check_declared(path: Path, arrays: Mapping[str, zarr.Array]) -> np.ndarray:
+    """``meta/episode_ends``, read once its own size is bounded; then every array's declared
+    shape checked against it (data arrays one row per step, per-episode arrays one per
+    episode) and its chunks bounded (:func:`_check_size`), before any other chunk is listed
+    or read. One InputError naming the store, the array and what was expected."""
+    key = "meta/episode_ends"
+    if key not in arrays:
+        raise InputError(f"{path}: {key} missing (not an episode store)")
+    if arrays[key].ndim != 1:
+        raise InputError(f"{path}: {key}: shape {arrays[key].shape}, expected (N_episodes,)")
+    _check_size(path, key, arrays[key])
+    _check_chunks(path, key, arrays[key])
+    ends = np.asarray(_read_array(path, key, arrays[key]), dtype=np.int64)
+    if len(ends) and (ends[0] < 0 or np.any(np.diff(ends) < 0)):
+        raise InputError(f"{path}: {key}: expected non-decreasing ends, got {ends}")
+    n_steps = int(ends[-1]) if len(ends) else 0
+    for name, member in arrays.items():
+        rows = member.shape[0] if member.ndim else 0
+        if name.startswith("data/") and rows != n_steps:
+            raise InputError(f"{path}: {name}: {rows} steps, expected {n_steps} ({key})")
+        if name.startswith("meta/episodes/") and rows != len(ends):
+            raise InputError(f"{path}: {name}: {rows} rows, expected one per episode ({len(ends)})")
+        _check_size(path, name, member)
+    return ends
+
+
+def _check_size(path: Path, key: str, member: zarr.Array) -> None:
+    """InputError unless ``member`` declares a regular chunk grid of at most
+    :data:`MAX_CHUNKS` chunks, each decoding to at most :data:`MAX_CHUNK_BYTES`."""
+    shape = tuple(int(s) for s in member.shape)
+    chunks = tuple(int(c) for c in getattr(member.metadata.chunk_grid, "chunk_shape", ()))
+    if len(chunks) != len(shape) or any(c < 1 for c in chunks):
+        raise InputError(
+            f"{path}: {key}: chunks {chunks} for shape {shape}, expected one positive chunk "
+            "size per axis (the store is damaged; re-run the stage that wrote it)"
+        )
+    n = math.prod(-(-s // c) for s, c in zip(shape, chunks, strict=True))
+    size = math.prod(chunks) * member.dtype.itemsize
+    if n > MAX_CHUNKS or size > MAX_CHUNK_BYTES:
+        raise InputError(
+            f"{path}: {key}: shape {shape} in chunks of {chunks} declares {n} chunks of "
+            f"{size} bytes, expected at most {MAX_CHUNKS} chunks of at most "
+            f"{MAX_CHUNK_BYTES} bytes (the store is damaged or not written by mimicgen-pipe)"
+        )
 
 
 def _check_chunks(path: Path, key: str, member: zarr.Array) -> None:
@@ -353,9 +430,57 @@ def _damaged(path: Path, key: str, exc: Exception) -> InputError:
     )
 
 
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+
+
+def _frame_size(head: bytes) -> int | None:
+    """The decoded size that the zstd frame starting with ``head`` (at least its first 18
+    bytes) declares; None when it is no zstd frame or declares no size (RFC 8878, 3.1.1)."""
+    if len(head) < 5 or head[:4] != _ZSTD_MAGIC:
+        return None
+    descriptor = head[4]
+    single_segment = (descriptor >> 5) & 1
+    at = 5 + (1 - single_segment) + (0, 1, 2, 4)[descriptor & 3]
+    width = (single_segment, 2, 4, 8)[descriptor >> 6]
+    if width == 0 or len(head) < at + width:
+        return None
+    size = int.from_bytes(head[at : at + width], "little")
+    return size + 256 if width == 2 else size
+
+
+def _check_frames(
+    path: Path, key: str, member: zarr.Array, coords: Iterable[tuple[int, ...]]
+) -> None:
+    """InputError unless each chunk of ``coords`` declares, in its zstd frame's header, the
+    size its chunk shape decodes to: zarr's zstd codec allocates what the header says before
+    it decodes, so a small file declaring gigabytes is refused before it is decoded. Chunks
+    of another layout than write_store's are left to zarr."""
+    md = member.metadata
+    codecs = [type(c) for c in getattr(md, "codecs", ())]
+    if codecs != [BytesCodec, ZstdCodec, Crc32cCodec] or not isinstance(member.store, LocalStore):
+        return
+    expected = math.prod(md.chunk_grid.chunk_shape) * member.dtype.itemsize
+    folder = Path(member.store.root) / member.path
+    for c in coords:
+        try:
+            with (folder / md.encode_chunk_key(c)).open("rb") as f:
+                declared = _frame_size(f.read(18))
+        except OSError:
+            continue  # a missing chunk: _check_chunks names it
+        if declared != expected:
+            said = "no decoded size" if declared is None else f"{declared} decoded bytes"
+            raise InputError(
+                f"{path}: {key}: chunk {'.'.join(map(str, c))} declares {said}, expected "
+                f"{expected} (its chunk shape); the store is damaged, re-run the stage that "
+                "wrote it"
+            )
+
+
 def _read_array(path: Path, key: str, member: zarr.Array) -> np.ndarray:
-    """One whole array, every chunk present and matching its checksum."""
+    """One whole array, every chunk present, of the size its shape declares (its header
+    read before it is decoded) and matching its checksum."""
     _check_chunks(path, key, member)
+    _check_frames(path, key, member, itertools.product(*map(range, member.cdata_shape)))
     try:
         return member[...]
     except Exception as exc:  # zarr raises ValueError/RuntimeError by codec
@@ -495,6 +620,8 @@ def _open_root(
     its schema version, its kind (one of ``kind`` unless None) and its task (unless None)."""
     if not path.exists():
         raise InputError(f"{path}: store not found{missing_store_hint(path, kind)}")
+    if (path / "zarr.json").is_file():  # else zarr says what is missing, below
+        _check_metadata(path)
     try:
         root = zarr.open_group(str(path), mode="r")
         attrs = dict(root.attrs)
@@ -535,14 +662,13 @@ def read_store(
     path = Path(path)
     check_committed(path)  # never read a set that a killed run left half committed
     groups, attrs = _open_root(path, task, kind)
-    arrays = _read_group(path, groups[0], "data/") | _read_group(path, groups[1], "meta/")
-    if "meta/episode_ends" not in arrays:
-        raise InputError(f"{path}: meta/episode_ends missing (not an episode store)")
+    members = _members(path, groups[0], "data/") | _members(path, groups[1], "meta/")
+    ends = _check_declared(path, members)  # before any read: shapes, chunk counts, sizes
+    arrays = {k: _read_array(path, k, m) for k, m in members.items() if k != "meta/episode_ends"}
     data = _strip("data/", {k: v for k, v in arrays.items() if k.startswith("data/")})
     episodes = _strip(
         "meta/episodes/", {k: v for k, v in arrays.items() if k.startswith("meta/episodes/")}
     )
-    ends = np.asarray(arrays["meta/episode_ends"], dtype=np.int64)
     _check_required(path, attrs, ends, [k for k in required if k not in data])
     missing = [k for k in required_episodes if k not in episodes]
     if missing:
@@ -649,13 +775,9 @@ def open_store(
     check_committed(path)  # never read a set that a killed run left half committed
     groups, attrs = _open_root(path, task, kind)
     arrays = _members(path, groups[0], "data/") | _members(path, groups[1], "meta/")
-    if "meta/episode_ends" not in arrays:
-        raise InputError(f"{path}: meta/episode_ends missing (not an episode store)")
+    ends = _check_declared(path, arrays)  # before any listing: shapes, chunk counts, sizes
     for key, member in arrays.items():  # a listing, not a read: a damaged store stops here
         _check_chunks(path, key, member)
-    ends = np.asarray(
-        _read_array(path, "meta/episode_ends", arrays["meta/episode_ends"]), dtype=np.int64
-    )
     data = _strip("data/", {k: v for k, v in arrays.items() if k.startswith("data/")})
     episodes: dict[str, Any] = _strip(
         "meta/episodes/", {k: v for k, v in arrays.items() if k.startswith("meta/episodes/")}
@@ -767,6 +889,7 @@ def _iter_chunked_rows(
         pos = start
         while pos < end:
             stop = min(end, (pos // rows + 1) * rows)
+            _check_frames(path, key, member, [(pos // rows,) + (0,) * (member.ndim - 1)])
             try:
                 block = member[pos:stop]
             except Exception as exc:  # zarr raises ValueError/RuntimeError by codec

@@ -22,7 +22,7 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.outputs import directory_kind
-from mimicgen_pipe.params import Params, TrainParams, training_params
+from mimicgen_pipe.params import Params, TrainParams, key_range, training_params
 from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
 from mimicgen_pipe.stacked_training import train_stacked
 from mimicgen_pipe.training_setup import (
@@ -330,6 +330,7 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[BCRNN, dict[str, Any]]:
             raise InputError(
                 f"{path}: checkpoint version {version!r}, expected {CHECKPOINT_VERSION}"
             )
+        check_config(path, ckpt["config"])  # before a network of its sizes is built
         model = BCRNN(PolicyConfig.from_dict(ckpt["config"]))
         state = ckpt["state_dict"]
         model.load_state_dict(state)
@@ -345,6 +346,42 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[BCRNN, dict[str, Any]]:
                 "diverged?); a policy with them cannot act"
             )
     return model, meta
+
+
+# A checkpoint's config sizes the network built from it: each size is held to the range the
+# params file allows the train profile's key of that name (train.*.hidden, ...), the others
+# to these, before anything is built
+_CONFIG_RANGES: dict[str, tuple[float, float]] = {
+    "action_dim": (1, 1024),
+    "modes": (1, 1024),
+    "obs_dims": (1, 1_000_000),  # each
+    "min_std": (0.0, 1.0),
+}
+MAX_CONFIG_KEYS = 1024  # entries of obs_keys or image_keys (cameras)
+
+
+def check_config(path: Path, config: Any) -> None:
+    """InputError naming the checkpoint and the key unless ``config`` is a mapping whose
+    sizes are numbers in their ranges (:data:`_CONFIG_RANGES`, else the params file's for
+    ``train.<profile>.<key>``) and whose key lists are short lists of names."""
+    if not isinstance(config, dict):
+        raise InputError(f"{path}: config is a {type(config).__name__}, expected a dict")
+    for key, value in config.items():
+        values = value if isinstance(value, list | tuple) else [value]
+        if len(values) > MAX_CONFIG_KEYS:
+            raise InputError(f"{path}: config.{key}: {len(values)} entries, expected a few")
+        if key in ("obs_keys", "image_keys"):
+            if not all(isinstance(v, str) for v in values):
+                raise InputError(f"{path}: config.{key}: expected a list of names")
+            continue
+        bounds = _CONFIG_RANGES.get(key) or key_range(f"train.checkpoint.{key}")
+        for v in values:
+            number = isinstance(v, int | float) and not isinstance(v, bool)
+            if bounds is not None and not (number and bounds[0] <= v <= bounds[1]):
+                raise InputError(
+                    f"{path}: config.{key}: {v!r}, expected a value in [{bounds[0]}, "
+                    f"{bounds[1]}] (a checkpoint the train stage wrote has one)"
+                )
 
 
 def _one_line(exc: BaseException) -> str:

@@ -92,17 +92,25 @@ def _one_line(exc: yaml.YAMLError) -> str:
     return " ".join(str(exc).split())
 
 
-def read_text(path: str | Path, what: str, limit: int | None = None) -> str:
+# a file a user gives is read whole: larger than this, it is not one of ours (a params file
+# is a few kB, a metrics file or a trajectory's JSON a few MB at most)
+MAX_BYTES = 64 << 20
+
+
+def read_text(path: str | Path, what: str, max_bytes: int = MAX_BYTES) -> str:
     """The UTF-8 text of a user's file; InputError naming the file when it is missing
-    (``what`` says what was expected there), not a regular file (a folder, a FIFO, a
-    device), larger than ``limit`` bytes, unreadable or not UTF-8 text (e.g. a binary file
-    given by mistake)."""
+    (``what`` says what was expected there), not a regular file (a folder, a device such as
+    /dev/zero, a pipe), larger than ``max_bytes``, unreadable or not UTF-8 text (e.g. a
+    binary file given by mistake)."""
     path = Path(path)
-    regular_file(path, what, limit)
+    regular_file(path, what, max_bytes)
     try:
-        data = path.read_bytes()
+        with path.open("rb") as f:
+            data = f.read(max_bytes + 1)  # a file that grew since: still bounded
     except OSError as exc:
         raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from exc
+    if len(data) > max_bytes:
+        raise InputError(f"{path}: more than the {max_bytes} bytes a {what} may have")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -38,6 +38,29 @@ def add_generated_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+# options whose values become parts of file and folder names (data/generated/<task>_<variant>
+# .zarr, data/policies/<task>_<data>): a name, never a path such as ../..
+PATH_NAME_OPTIONS = ("backend", "task", "robot", "variant", "data")
+PATH_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
+
+
+def check_path_names(args: argparse.Namespace) -> None:
+    """InputError, before any work, for a value of :data:`PATH_NAME_OPTIONS` that is not a
+    name of letters, digits, _ and - (the known names are checked where they are used)."""
+    for dest in PATH_NAME_OPTIONS:
+        value = getattr(args, dest, None)
+        for v in value if isinstance(value, list) else [value]:
+            if v is not None:
+                check_path_name(f"--{dest}", v)
+
+
+def check_path_name(option: str, value: str) -> None:
+    """InputError unless ``value`` (given as ``option``) is a name of letters, digits, _
+    and -, starting with a letter or digit."""
+    if not PATH_NAME.fullmatch(value):
+        raise InputError(f"{option} {value!r}: expected letters, digits, _ and - only")
+
+
 def episode_count(text: str) -> int:
     """--episodes: a whole number, at least 1."""
     if not text.isdigit() or int(text) < 1:
@@ -131,8 +154,7 @@ def check_data(params: Params, data: str, named: bool) -> None:
     "source" or one of its reset variants; or, where the store or policies are given by path
     (``named``), any name of letters, digits, _ and - (it goes into output file names)."""
     if named:
-        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]*", data):
-            raise InputError(f"--data {data!r}: expected letters, digits, _ and - only")
+        check_path_name("--data", data)
         return
     variants = envs.task_spec(params.backend, params.task).variants
     if data != "source" and data not in variants:

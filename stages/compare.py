@@ -5,7 +5,6 @@ numbers (its report's summary.json), each with its change from the first run. Pr
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import subprocess
 import sys
@@ -13,6 +12,7 @@ from pathlib import Path
 
 from mimicgen_pipe.compare import PIPELINES, render, runs_of, select, table
 from mimicgen_pipe.errors import InputError, StageError
+from mimicgen_pipe.jsonfile import MAX_BYTES, parse_json, read_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -53,18 +53,26 @@ def exp_show() -> object:
     if res.returncode != 0:
         last = (res.stderr.strip().splitlines() or ["no output"])[-1]
         raise StageError(f"dvc exp show failed: {last}")
-    return json.loads(res.stdout)
+    return parse_json(res.stdout, "dvc exp show --json")
+
+
+def read_shown(given: str) -> object:
+    """The dvc exp show --json output in the file ``given`` ('-': stdin), parsed, bounded
+    as every JSON file a stage reads (:mod:`mimicgen_pipe.jsonfile`)."""
+    try:
+        if given != "-":
+            return read_json(given, "dvc exp show --json output")
+        text = sys.stdin.read(MAX_BYTES + 1)
+        if len(text) > MAX_BYTES:
+            raise InputError(f"{given}: more than {MAX_BYTES} bytes")
+        return parse_json(text, given)
+    except InputError as exc:
+        why = str(exc).removeprefix(f"{given}: ")
+        raise InputError(f"{given}: not dvc exp show --json output ({why})") from None
 
 
 def run(args: argparse.Namespace) -> None:
-    if args.json is None:
-        shown = exp_show()
-    else:
-        try:
-            text = sys.stdin.read() if args.json == "-" else Path(args.json).read_text()
-            shown = json.loads(text)
-        except (OSError, json.JSONDecodeError) as exc:
-            raise InputError(f"{args.json}: not dvc exp show --json output ({exc})") from exc
+    shown = exp_show() if args.json is None else read_shown(args.json)
     pipeline = PIPELINES[args.pipeline]
     runs = select(runs_of(shown, pipeline), args.runs)
     if not runs:

@@ -24,7 +24,9 @@ from typing import Any
 
 from mimicgen_pipe import robomimic_source
 from mimicgen_pipe.errors import InputError, StageError
+from mimicgen_pipe.exporters.robomimic import check_finite
 from mimicgen_pipe.external import DEFAULT_PYTHON, _robomimic_train, check_python, format_module
+from mimicgen_pipe.jsonfile import read_json
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, directory_kind, output_set
 from mimicgen_pipe.params import Params, TrainProfile
@@ -118,10 +120,10 @@ def run(args: argparse.Namespace) -> None:
     dataset, out, normalize = Path(args.dataset), Path(args.out), args.obs == "normalized"
     # checked here, in our process: robomimic would follow the file's links to other files
     robomimic_source.check_training_file(dataset)
-    try:
-        base = json.loads(Path(args.config).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"--config {args.config}: not a readable JSON file ({exc})") from None
+    check_finite(dataset)  # before robomimic reads it
+    base = read_json(args.config, "robomimic config (JSON)")
+    if not isinstance(base, dict):
+        raise InputError(f"--config {args.config}: expected a JSON object (a robomimic config)")
     python = check_python(args.python or str(DEFAULT_PYTHON))
     claim((out, CHECKPOINTS), Path(args.metrics), Path(args.plot), inputs=[dataset])
     with output_set(out, args.metrics, args.plot) as (tmp_out, tmp_metrics, tmp_plot):

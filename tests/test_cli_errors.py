@@ -257,7 +257,7 @@ def test_source_stops_with_one_error_when_the_demonstrator_falls_short(tmp_path,
     "args, expected",
     [
         (["train", "--data", "D9"], "--data 'D9': expected \"source\" or a reset variant of"),
-        (["evaluate", "--data", "../x", "--variant", "D0"], "--data '../x': expected \"source\""),
+        (["evaluate", "--data", "../x", "--variant", "D0"], "--data '../x': expected letters"),
         (["evaluate", "--data", "a/b", "--variant", "D0", "--policies", "p"],
          "--data 'a/b': expected letters, digits, _ and - only"),
         (["evaluate_external", "--policy", "robomimic:input/m.pth", "--data", "D9",

@@ -56,6 +56,7 @@ import numpy as np
 
 from mimicgen_pipe import hdf5
 from mimicgen_pipe.camera_calibration import store_calibration
+from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.store import EpisodeStore, store_cameras
 from mimicgen_pipe.taskspec import arm_key
 
@@ -271,3 +272,38 @@ def _write_data_attrs(data: h5py.Group, store: EpisodeStore, info, labelled: boo
     if calibration:
         named = {camera_name(c): v for c, v in calibration.items()}
         data.attrs["camera_calibration"] = json.dumps(named)
+
+
+_CHECK_ROWS = 1 << 16  # rows of a dataset checked at a time: memory stays small
+
+
+def check_finite(path: Path) -> None:
+    """InputError naming the file and the dataset unless every float ``actions`` and
+    ``obs/<key>`` of each ``data/<demo>`` of the robomimic file at ``path`` is finite: a
+    NaN handed to robomimic ends its training pages later, in its own traceback."""
+    try:
+        with h5py.File(path, "r") as f:
+            data = f.get("data")
+            if not isinstance(data, h5py.Group):
+                raise InputError(f"{path}: no data group (not a robomimic dataset)")
+            for name, demo in data.items():
+                if not isinstance(demo, h5py.Group):
+                    continue
+                obs = demo.get("obs")
+                keys = [f"obs/{k}" for k in obs] if isinstance(obs, h5py.Group) else []
+                for key in ["actions", *keys]:
+                    _check_finite_rows(path, f"data/{name}/{key}", demo.get(key))
+    except OSError as exc:
+        raise InputError(f"{path}: not a readable HDF5 file ({exc})") from exc
+
+
+def _check_finite_rows(path: Path, key: str, dataset: object) -> None:
+    if not isinstance(dataset, h5py.Dataset) or dataset.dtype.kind != "f" or not dataset.shape:
+        return
+    for start in range(0, dataset.shape[0], _CHECK_ROWS):
+        rows = dataset[start : start + _CHECK_ROWS]
+        bad = ~np.isfinite(rows.reshape(len(rows), -1)).all(axis=1)
+        if bad.any():
+            raise InputError(
+                f"{path}: {key}: NaN or infinite value at step {start + int(np.argmax(bad))}"
+            )

@@ -89,6 +89,8 @@ def _json(file: Path) -> object:
         return json.loads(file.read_text())
     except (ValueError, UnicodeDecodeError) as exc:
         return f"{file}: not JSON ({exc})"
+    except RecursionError:  # json recurses once per level of nesting
+        return f"{file}: JSON nested too deep for a policy config"
 
 
 def why_outside(folder: Path, name: object, key: str) -> str | None:

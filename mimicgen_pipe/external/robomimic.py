@@ -111,11 +111,16 @@ def checkpoint_config(ckpt: dict) -> dict:
     (:func:`pretrained_off`); ValueError naming the key otherwise."""
     try:
         config = json.loads(ckpt["config"])
+    except RecursionError:  # json recurses once per level of nesting
+        raise ValueError("config: JSON nested too deep for a robomimic config") from None
     except (KeyError, TypeError, json.JSONDecodeError) as exc:
         raise ValueError(f"config: not a robomimic config JSON string ({exc})") from None
     if not isinstance(config, dict):
         raise ValueError("config: not a JSON object")
-    check_classes(config)
+    try:
+        check_classes(config)
+    except RecursionError:
+        raise ValueError("config: JSON nested too deep for a robomimic config") from None
     return pretrained_off(config)
 
 
