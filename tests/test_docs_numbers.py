@@ -42,7 +42,7 @@ REPO = Path(__file__).resolve().parents[1]
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
 
 # Numbers right after these names are versions of software or hardware, not results.
-VERSIONED = ("Python", "Mesa", "Debian", "Zen", "robomimic", "LeRobot", "Zarr")
+VERSIONED = ("Python", "Mesa", "Debian", "Zen", "robomimic", "LeRobot", "Zarr", "torchvision")
 
 FENCE = re.compile(r"^(```|~~~).*?^\1[^\n]*$", re.M | re.S)
 INLINE_CODE = re.compile(r"`([^`\n]*)`")
