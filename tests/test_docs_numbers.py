@@ -2,22 +2,24 @@
 number in the manual cannot drift from the run it describes. The rules, applied outside
 fenced code blocks and inline `code` spans:
 
-1. The text splits into blocks: a paragraph, a list item, a table row, a heading.
+1. The text splits into blocks: a paragraph, a list item, a table row, a heading. A table
+   row also cites what its table's header row cites.
 2. A result number is a decimal (``90.9``, ``0.143``), a percentage (``38 %``; each number
    of ``0–4 %`` and of ``2, 16, 34 %``), a duration (``82 s``, ``21 min``, ``2 h``,
-   ``5 h 30 min``, ``1.2 ms``; each number of ``22–75 s``) or a success fraction
-   (``187/200``). Not results: a version (``v3.0``, ``0.3.0``, a number after a name in
-   VERSIONED), and a task's or a setting's geometry: a length, angle, mass or frequency
-   (``0.76 m``, ``1.2–1.7 cm/s``, ``±0.1 rad``, ``0.11 kg``, ``240 Hz``) and the bounds of
-   an interval (``x ∈ [−0.1, 0.05]``), which task files and params set.
+   ``5 h 30 min``, ``1.2 ms``; each number of ``22–75 s``), a size (``22.6 MB``) or a
+   success fraction (``187/200``). Not results: a version (``v3.0``, ``0.3.0``, a number
+   after a name in VERSIONED), and a task's or a setting's geometry, which task files and
+   params set: a length, angle, mass or frequency (``0.76 m``, ``1.2–1.7 cm/s``,
+   ``±0.1 rad``, ``0.11 kg``, ``240 Hz``) and the bounds of an interval
+   (``x ∈ [−0.1, 0.05]``).
 3. A block holding a result number cites a source: a Markdown link, or a backticked path
    from the repository root, to a committed file that is data (``.json``, ``.csv``, a
    params or reference ``.yaml``), a generated report (``report.md`` in a ``report/``
    folder) or a pipeline's ``dvc.lock``.
 4. Each result number of the block equals a number written in one of its sources, rounded
    as the text shows it (within half a unit of its last digit). A percentage may also equal
-   100 times the file's number; a duration may be in seconds in the file or in the unit the
-   text uses; a fraction N/M needs both N and M in the source.
+   100 times the file's number; a duration may be in seconds in the file, a size in bytes,
+   or either in the unit the text uses; a fraction N/M needs both N and M in the source.
 5. A duration in a block that cites a pipeline's ``dvc.lock`` is that pipeline's whole
    time: within 10 % of the sum of ``wall_seconds`` over the metrics files its lock records
    as outputs.
@@ -57,9 +59,9 @@ VERSION = re.compile(
 GEOMETRY = re.compile(
     rf"(?<![\w.]){NUM}(?:{SEP}{NUM})*\s*(?:mm|cm|m|rad|°|kg|Hz)(?:/s)?(?![\w])|\[[^\]\n]*\d[^\]\n]*\]"
 )
-UNITS = {"ms": 0.001, "s": 1.0, "min": 60.0, "h": 3600.0}
+UNITS = {"ms": 0.001, "s": 1.0, "min": 60.0, "h": 3600.0, "kB": 1e3, "MB": 1e6, "GB": 1e9}
 HOURS_MINUTES = re.compile(rf"(?<![\w.])({NUM})\s*h\s+({NUM})\s*min\b")
-DURATION = re.compile(rf"(?<![\w.])({NUM}(?:{SEP}{NUM})*)\s*(ms|s|min|h)\b")
+DURATION = re.compile(rf"(?<![\w.])({NUM}(?:{SEP}{NUM})*)\s*(ms|s|min|h|kB|MB|GB)\b")
 PERCENT = re.compile(rf"(?<![\w.]){NUM}(?:{SEP}{NUM})*\s*%")
 FRACTION = re.compile(r"(?<![\w./])(\d+)/(\d+)(?![\w/]|\.\d)")
 DECIMAL = re.compile(r"(?<![\w.])\d+\.\d+(?![\w.])")
@@ -75,8 +77,8 @@ class Figure:
     text: str  # as written
     value: float  # as written, in the text's unit
     half: float  # half a unit of its last digit
-    kind: str  # "number", "percent", "duration" or "fraction"
-    scale: float = 1.0  # a duration: seconds per unit of ``value``
+    kind: str  # "number", "percent", "duration" (a size too) or "fraction"
+    scale: float = 1.0  # a duration or size: seconds or bytes per unit of ``value``
     denominator: int = 0  # a fraction's M
 
 
@@ -201,12 +203,16 @@ def unbacked(page: Path, root: Path = REPO, text: str | None = None) -> list[str
     """Each result number of ``page`` (or of ``text`` as if it were ``page``) that breaks
     rules 3-5, with its block's first words."""
     problems = []
+    header = previous = ""
     for block in blocks(page.read_text() if text is None else text):
+        if block.startswith("|") and not previous.startswith("|"):
+            header = block
+        previous = block
         figs = figures(prose(block))
         if not figs:
             continue
         where = f"{page.name}: {' '.join(block.split())[:70]!r}"
-        cited = sources(block, page, root)
+        cited = sources(block + (header if block.startswith("|") else ""), page, root)
         if not cited:
             problems.append(f"{where} -> cites no source for {[f.text for f in figs]}")
             continue
@@ -225,11 +231,11 @@ def unbacked(page: Path, root: Path = REPO, text: str | None = None) -> list[str
 def test_figures_are_the_result_numbers_and_only_those() -> None:
     prose_ = (
         "DGR 90.9 (0.143), 38 % and 2, 16, 34 % at epochs 50–200; 22–75 s, about 5 h 30 min,"
-        " 1.2 ms; kept 187/200. Not: v3.0, robomimic 0.3.0, Python 3.10–3.11, Mesa ≥ 24.3,"
+        " 1.2 ms, 22.6 MB; kept 187/200. Not: v3.0, robomimic 0.3.0, Python 3.10–3.11, Mesa ≥ 24.3,"
         " 0.76 m, 1.2–1.7 cm/s, x ∈ [−0.1, 0.05], Table O.1, 200 epochs, 2×100, lr 1e-3."
     )
     assert [f.text for f in figures(prose_)] == [
-        "5 h 30 min", "22 s", "75 s", "1.2 ms", "38 %", "2 %", "16 %", "34 %", "187/200",
+        "5 h 30 min", "22 s", "75 s", "1.2 ms", "22.6 MB", "38 %", "2 %", "16 %", "34 %", "187/200",
         "90.9", "0.143",
     ]  # fmt: skip
 
@@ -243,12 +249,16 @@ def _repo(tmp_path: Path, metrics: dict[str, float]) -> Path:
 
 
 def test_each_number_must_be_in_a_file_its_block_cites(tmp_path: Path) -> None:
-    page = _repo(tmp_path, {"dgr": 96.2464, "kept": 187, "attempts": 200, "wall_seconds": 137.1})
+    page = _repo(
+        tmp_path,
+        {"dgr": 96.2464, "kept": 187, "attempts": 200, "wall_seconds": 137.1, "bytes": 22573056},
+    )
     page.write_text(
         "Kept 187/200, DGR 96.2 % in 2.3 min ([m](../metrics/m.json)).\n\n"
         "- DGR 0.96 (a share) and 96 %, `metrics/m.json`.\n"
         "- DGR 96.3 %, `metrics/m.json`.\n"
         "| 187/201 | [m](../metrics/m.json) |\n\n"
+        "| case | [m](../metrics/m.json) |\n|---|---|\n| peak | 22.6 MB |\n| DGR | 96.1 |\n\n"
         "No source: 12.5 %.\n\n"
         "```\nin code: 99.9 %\n```\nand `inline 99.9 %` and prose without numbers.\n"
     )
@@ -257,6 +267,7 @@ def test_each_number_must_be_in_a_file_its_block_cites(tmp_path: Path) -> None:
         "'0.96' is not in metrics/m.json",
         "'96.3 %' is not in metrics/m.json",
         "'187/201' is not in metrics/m.json",
+        "'96.1' is not in metrics/m.json",
         "cites no source for ['12.5 %']",
     ]
 
