@@ -6,8 +6,8 @@ fenced code blocks and inline `code` spans:
    row also cites what its table's header row cites.
 2. A result number is a decimal (``90.9``, ``0.143``), a percentage (``38 %``; each number
    of ``0–4 %`` and of ``2, 16, 34 %``), a duration (``82 s``, ``21 min``, ``2 h``,
-   ``5 h 30 min``, ``1.2 ms``; each number of ``22–75 s``), a size (``22.6 MB``) or a
-   success fraction (``187/200``). Not results: a version (``v3.0``, ``0.3.0``, a number
+   ``5 h 30 min``, ``1.2 ms``; each number of ``22–75 s``) or a success fraction
+   (``187/200``). Not results: a version (``v3.0``, ``0.3.0``, a number
    after a name in VERSIONED), and a task's or a setting's geometry, which task files and
    params set: a length, angle, mass or frequency (``0.76 m``, ``1.2–1.7 cm/s``,
    ``±0.1 rad``, ``0.11 kg``, ``240 Hz``) and the bounds of an interval
@@ -18,8 +18,9 @@ fenced code blocks and inline `code` spans:
    folder) or a pipeline's ``dvc.lock``.
 4. Each result number of the block equals a number written in one of its sources, rounded
    as the text shows it (within half a unit of its last digit). A percentage may also equal
-   100 times the file's number; a duration may be in seconds in the file, a size in bytes,
-   or either in the unit the text uses; a fraction N/M needs both N and M in the source.
+   100 times the file's number; a duration may be in seconds in the file and a decimal size
+   (``22.6 MB``) in bytes, or either in the unit the text uses; a fraction N/M needs both N
+   and M in the source.
 5. A duration in a block that cites a pipeline's ``dvc.lock`` is that pipeline's whole
    time: within 10 % of the sum of ``wall_seconds`` over the metrics files its lock records
    as outputs.
@@ -60,6 +61,7 @@ GEOMETRY = re.compile(
     rf"(?<![\w.]){NUM}(?:{SEP}{NUM})*\s*(?:mm|cm|m|rad|°|kg|Hz)(?:/s)?(?![\w])|\[[^\]\n]*\d[^\]\n]*\]"
 )
 UNITS = {"ms": 0.001, "s": 1.0, "min": 60.0, "h": 3600.0, "kB": 1e3, "MB": 1e6, "GB": 1e9}
+SIZES = ("kB", "MB", "GB")
 HOURS_MINUTES = re.compile(rf"(?<![\w.])({NUM})\s*h\s+({NUM})\s*min\b")
 DURATION = re.compile(rf"(?<![\w.])({NUM}(?:{SEP}{NUM})*)\s*(ms|s|min|h|kB|MB|GB)\b")
 PERCENT = re.compile(rf"(?<![\w.]){NUM}(?:{SEP}{NUM})*\s*%")
@@ -98,7 +100,8 @@ def figures(prose: str) -> list[Figure]:
     for m in DURATION.finditer(text):
         unit = m.group(2)
         for n in re.findall(NUM, m.group(1)):
-            out.append(_figure(f"{n} {unit}", n, "duration", UNITS[unit]))
+            if unit not in SIZES or "." in n:  # a size is a result only as a decimal (rule 2)
+                out.append(_figure(f"{n} {unit}", n, "duration", UNITS[unit]))
     text = DURATION.sub(" ", text)
     for m in PERCENT.finditer(text):
         out += [_figure(f"{n} %", n, "percent") for n in re.findall(NUM, m.group(0))]
@@ -231,7 +234,8 @@ def unbacked(page: Path, root: Path = REPO, text: str | None = None) -> list[str
 def test_figures_are_the_result_numbers_and_only_those() -> None:
     prose_ = (
         "DGR 90.9 (0.143), 38 % and 2, 16, 34 % at epochs 50–200; 22–75 s, about 5 h 30 min,"
-        " 1.2 ms, 22.6 MB; kept 187/200. Not: v3.0, robomimic 0.3.0, Python 3.10–3.11, Mesa ≥ 24.3,"
+        " 1.2 ms, 22.6 MB; kept 187/200. Not: 5 GB, v3.0, robomimic 0.3.0, Python 3.10–3.11,"
+        " Mesa ≥ 24.3,"
         " 0.76 m, 1.2–1.7 cm/s, x ∈ [−0.1, 0.05], Table O.1, 200 epochs, 2×100, lr 1e-3."
     )
     assert [f.text for f in figures(prose_)] == [
