@@ -9,7 +9,7 @@ fenced code blocks and inline `code` spans:
    ``5 h 30 min``, ``1.2 ms``; each number of ``22–75 s``) or a success fraction
    (``187/200``). Not results: a version (``v3.0``, ``0.3.0``, a number
    after a name in VERSIONED), and a task's or a setting's geometry, which task files and
-   params set: a length, angle, mass or frequency (``0.76 m``, ``1.2–1.7 cm/s``,
+   params set: a length (``px`` too), angle, mass or frequency (``0.76 m``, ``1.2–1.7 cm/s``,
    ``±0.1 rad``, ``0.11 kg``, ``240 Hz``) and the bounds of an interval
    (``x ∈ [−0.1, 0.05]``).
 3. A block holding a result number cites a source: a Markdown link, or a backticked path
@@ -58,7 +58,7 @@ VERSION = re.compile(
 )
 # rule 2: geometry a task file or params sets, not a measured result
 GEOMETRY = re.compile(
-    rf"(?<![\w.]){NUM}(?:{SEP}{NUM})*\s*(?:mm|cm|m|rad|°|kg|Hz)(?:/s)?(?![\w])|\[[^\]\n]*\d[^\]\n]*\]"
+    rf"(?<![\w.]){NUM}(?:{SEP}{NUM})*\s*(?:mm|cm|m|px|rad|°|kg|Hz)(?:/s)?(?![\w])|\[[^\]\n]*\d[^\]\n]*\]"
 )
 UNITS = {"ms": 0.001, "s": 1.0, "min": 60.0, "h": 3600.0, "kB": 1e3, "MB": 1e6, "GB": 1e9}
 SIZES = ("kB", "MB", "GB")
