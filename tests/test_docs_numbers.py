@@ -1,0 +1,320 @@
+"""Every result number in README.md and docs/ is in a committed file the text cites, so a
+number in the manual cannot drift from the run it describes. The rules, applied outside
+fenced code blocks and inline `code` spans:
+
+1. The text splits into blocks: a paragraph, a list item, a table row, a heading. A table
+   row also cites what its table's header row cites.
+2. A result number is a decimal (``90.9``, ``0.143``), a percentage (``38 %``; each number
+   of ``0–4 %`` and of ``2, 16, 34 %``), a duration (``82 s``, ``21 min``, ``2 h``,
+   ``5 h 30 min``, ``1.2 ms``; each number of ``22–75 s``) or a success fraction
+   (``187/200``). Not results: a version (``v3.0``, ``0.3.0``, a number
+   after a name in VERSIONED), and a task's or a setting's geometry, which task files and
+   params set: a length (``px`` too), angle, mass or frequency (``0.76 m``, ``1.2–1.7 cm/s``,
+   ``±0.1 rad``, ``0.11 kg``, ``240 Hz``) and the bounds of an interval
+   (``x ∈ [−0.1, 0.05]``).
+3. A block holding a result number cites a source: a Markdown link, or a backticked path
+   from the repository root, to a committed file that is data (``.json``, ``.csv``, a
+   params or reference ``.yaml``), a generated report (``report.md`` in a ``report/``
+   folder) or a pipeline's ``dvc.lock``.
+4. Each result number of the block equals a number written in one of its sources, rounded
+   as the text shows it (within half a unit of its last digit). A percentage may also equal
+   100 times the file's number; a duration may be in seconds in the file and a decimal size
+   (``22.6 MB``) in bytes, or either in the unit the text uses; a fraction N/M needs both N
+   and M in the source.
+5. A duration in a block that cites a pipeline's ``dvc.lock`` is that pipeline's whole
+   time: within 10 % of the sum of ``wall_seconds`` over the metrics files its lock records
+   as outputs.
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import functools
+import json
+import re
+from pathlib import Path
+
+import pytest
+import yaml
+
+# the suite's lock is large: libyaml's loader reads it in a fraction of the pure-Python time
+_Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+REPO = Path(__file__).resolve().parents[1]
+PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+
+# Numbers right after these names are versions of software or hardware, not results.
+VERSIONED = ("Python", "Mesa", "Debian", "Zen", "robomimic", "LeRobot", "Zarr", "torchvision")
+
+FENCE = re.compile(r"^(```|~~~).*?^\1[^\n]*$", re.M | re.S)
+INLINE_CODE = re.compile(r"`([^`\n]*)`")
+LINK = re.compile(r"(!?\[[^\]]*\])\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
+ITEM = re.compile(r"^\s*(?:[-*+]|\d+\.)\s")
+NUM = r"\d+(?:\.\d+)?"
+SEP = r"\s*(?:,|–|-|and|or|to)\s*"
+VERSION = re.compile(
+    rf"\bv{NUM}|\d+\.\d+\.\d+|\b(?:{'|'.join(VERSIONED)})\s*(?:≥\s*)?{NUM}(?:\s*[–-]\s*{NUM})?"
+)
+# rule 2: geometry a task file or params sets, not a measured result
+GEOMETRY = re.compile(
+    rf"(?<![\w.]){NUM}(?:{SEP}{NUM})*\s*(?:mm|cm|m|px|rad|°|kg|Hz)(?:/s)?(?![\w])|\[[^\]\n]*\d[^\]\n]*\]"
+)
+UNITS = {"ms": 0.001, "s": 1.0, "min": 60.0, "h": 3600.0, "kB": 1e3, "MB": 1e6, "GB": 1e9}
+SIZES = ("kB", "MB", "GB")
+HOURS_MINUTES = re.compile(rf"(?<![\w.])({NUM})\s*h\s+({NUM})\s*min\b")
+DURATION = re.compile(rf"(?<![\w.])({NUM}(?:{SEP}{NUM})*)\s*(ms|s|min|h|kB|MB|GB)\b")
+PERCENT = re.compile(rf"(?<![\w.]){NUM}(?:{SEP}{NUM})*\s*%")
+FRACTION = re.compile(r"(?<![\w./])(\d+)/(\d+)(?![\w/]|\.\d)")
+DECIMAL = re.compile(r"(?<![\w.])\d+\.\d+(?![\w.])")
+FILE_NUMBER = re.compile(r"\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+DATA_SUFFIXES = {".json", ".csv", ".yaml"}
+WALL = 0.10  # rule 5: "about N min" for a whole pipeline
+
+
+@dataclasses.dataclass(frozen=True)
+class Figure:
+    """One result number as the text shows it."""
+
+    text: str  # as written
+    value: float  # as written, in the text's unit
+    half: float  # half a unit of its last digit
+    kind: str  # "number", "percent", "duration" (a size too) or "fraction"
+    scale: float = 1.0  # a duration or size: seconds or bytes per unit of ``value``
+    denominator: int = 0  # a fraction's M
+
+
+def _figure(text: str, number: str, kind: str, scale: float = 1.0) -> Figure:
+    places = len(number.partition(".")[2])
+    return Figure(text, float(number), 0.5 * 10.0**-places, kind, scale)
+
+
+def figures(prose: str) -> list[Figure]:
+    """The result numbers of one block of prose, code and link targets already taken out."""
+    text = GEOMETRY.sub(" ", VERSION.sub(" ", prose))
+    out: list[Figure] = []
+    for m in HOURS_MINUTES.finditer(text):
+        minutes = float(m.group(1)) * 60 + float(m.group(2))
+        out.append(Figure(m.group(0), minutes, 0.5, "duration", 60.0))
+    text = HOURS_MINUTES.sub(" ", text)
+    for m in DURATION.finditer(text):
+        unit = m.group(2)
+        for n in re.findall(NUM, m.group(1)):
+            if unit not in SIZES or "." in n:  # a size is a result only as a decimal (rule 2)
+                out.append(_figure(f"{n} {unit}", n, "duration", UNITS[unit]))
+    text = DURATION.sub(" ", text)
+    for m in PERCENT.finditer(text):
+        out += [_figure(f"{n} %", n, "percent") for n in re.findall(NUM, m.group(0))]
+    text = PERCENT.sub(" ", text)
+    for m in FRACTION.finditer(text):
+        n, d = m.groups()
+        out.append(Figure(m.group(0), float(n), 0.5, "fraction", denominator=int(d)))
+    text = FRACTION.sub(" ", text)
+    out += [_figure(m.group(0), m.group(0), "number") for m in DECIMAL.finditer(text)]
+    return out
+
+
+def blocks(text: str) -> list[str]:
+    """``text`` outside fenced code, as paragraphs, list items, table rows and headings."""
+    out: list[list[str]] = []
+    open_block = False
+    for line in FENCE.sub("\n", text).splitlines():
+        stripped = line.strip()
+        if not stripped:
+            open_block = False
+            continue
+        single = stripped.startswith(("|", "#"))
+        if single or ITEM.match(line) or not open_block:
+            out.append([line])
+        else:
+            out[-1].append(line)
+        open_block = not single
+    return ["\n".join(lines) for lines in out]
+
+
+def is_source(path: Path, root: Path) -> bool:
+    """A committed file whose numbers may back the text (rule 3)."""
+    if not path.is_file() or not path.resolve().is_relative_to(root.resolve()):
+        return False
+    if path.name == "dvc.lock":
+        return True
+    if path.name == "report.md":
+        return path.parent.name == "report"
+    return path.suffix in DATA_SUFFIXES and path.name != "dvc.yaml"
+
+
+def sources(block: str, page: Path, root: Path) -> list[Path]:
+    """The sources ``block`` cites: link targets (from the page) and backticked paths (from
+    the repository root)."""
+    cited = [page.parent / t.partition("#")[0] for _, t in LINK.findall(INLINE_CODE.sub("", block))]
+    cited += [root / c for c in INLINE_CODE.findall(block)]
+    return sorted({p.resolve() for p in cited if is_source(p, root)})
+
+
+def prose(block: str) -> str:
+    """``block`` without inline code and link targets (the link text stays)."""
+    return LINK.sub(r"\1", INLINE_CODE.sub(" ", block))
+
+
+@functools.cache
+def numbers_in(path: Path) -> list[float]:
+    """Every number written in ``path`` (a ``dvc.lock``: its pipeline's whole time), sorted."""
+    if path.name == "dvc.lock":
+        return [pipeline_seconds(path)]
+    return sorted(float(n) for n in FILE_NUMBER.findall(path.read_text()))
+
+
+@functools.cache
+def pipeline_seconds(lock: Path) -> float:
+    """The sum of ``wall_seconds`` over the metrics files ``lock`` records as outputs."""
+    root = lock.parent
+    while not (root / ".git").exists() and root != root.parent:
+        root = root.parent
+    stages = yaml.load(lock.read_text(), Loader=_Loader)["stages"]
+    total = 0.0
+    for stage in stages.values():
+        for out in stage.get("outs", []):
+            path = root / out["path"]
+            if path.suffix == ".json" and path.is_file():
+                metrics = json.loads(path.read_text())
+                if isinstance(metrics, dict):
+                    total += float(metrics.get("wall_seconds", 0.0))
+    return total
+
+
+def _near(values: list[float], x: float, tol: float) -> bool:
+    i = bisect.bisect_left(values, x - tol - 1e-9)
+    return i < len(values) and values[i] <= x + tol + 1e-9
+
+
+def found(fig: Figure, values: list[float], whole: bool = False) -> bool:
+    """Whether ``fig`` is one of ``values`` (rule 4), or, ``whole``, the pipeline's time."""
+    if fig.kind == "fraction":
+        return _near(values, fig.value, 0) and _near(values, fig.denominator, 0)
+    if whole:
+        return any(abs(v - fig.value * fig.scale) <= WALL * v for v in values)
+    if _near(values, fig.value, fig.half):
+        return True
+    if fig.kind == "percent":
+        return _near(values, fig.value / 100, fig.half / 100)
+    if fig.kind == "duration":
+        return _near(values, fig.value * fig.scale, fig.half * fig.scale)
+    return False
+
+
+def unbacked(page: Path, root: Path = REPO, text: str | None = None) -> list[str]:
+    """Each result number of ``page`` (or of ``text`` as if it were ``page``) that breaks
+    rules 3-5, with its block's first words."""
+    problems = []
+    header = previous = ""
+    for block in blocks(page.read_text() if text is None else text):
+        if block.startswith("|") and not previous.startswith("|"):
+            header = block
+        previous = block
+        figs = figures(prose(block))
+        if not figs:
+            continue
+        where = f"{page.name}: {' '.join(block.split())[:70]!r}"
+        cited = sources(block + (header if block.startswith("|") else ""), page, root)
+        if not cited:
+            problems.append(f"{where} -> cites no source for {[f.text for f in figs]}")
+            continue
+        locks = [p for p in cited if p.name == "dvc.lock"]
+        for fig in figs:
+            if fig.kind == "duration" and locks:
+                ok = any(found(fig, numbers_in(lock), whole=True) for lock in locks)
+            else:
+                ok = any(found(fig, numbers_in(p)) for p in cited if p.name != "dvc.lock")
+            if not ok:
+                names = ", ".join(str(p.relative_to(root.resolve())) for p in cited)
+                problems.append(f"{where} -> {fig.text!r} is not in {names}")
+    return problems
+
+
+def test_figures_are_the_result_numbers_and_only_those() -> None:
+    prose_ = (
+        "DGR 90.9 (0.143), 38 % and 2, 16, 34 % at epochs 50–200; 22–75 s, about 5 h 30 min,"
+        " 1.2 ms, 22.6 MB; kept 187/200. Not: 5 GB, v3.0, robomimic 0.3.0, Python 3.10–3.11,"
+        " Mesa ≥ 24.3,"
+        " 0.76 m, 1.2–1.7 cm/s, x ∈ [−0.1, 0.05], Table O.1, 200 epochs, 2×100, lr 1e-3."
+    )
+    assert [f.text for f in figures(prose_)] == [
+        "5 h 30 min", "22 s", "75 s", "1.2 ms", "22.6 MB", "38 %", "2 %", "16 %", "34 %", "187/200",
+        "90.9", "0.143",
+    ]  # fmt: skip
+
+
+def _repo(tmp_path: Path, metrics: dict[str, float]) -> Path:
+    (tmp_path / ".git").mkdir()
+    (tmp_path / "metrics").mkdir()
+    (tmp_path / "metrics" / "m.json").write_text(json.dumps(metrics))
+    (tmp_path / "docs").mkdir()
+    return tmp_path / "docs" / "page.md"
+
+
+def test_each_number_must_be_in_a_file_its_block_cites(tmp_path: Path) -> None:
+    page = _repo(
+        tmp_path,
+        {"dgr": 96.2464, "kept": 187, "attempts": 200, "wall_seconds": 137.1, "bytes": 22573056},
+    )
+    page.write_text(
+        "Kept 187/200, DGR 96.2 % in 2.3 min ([m](../metrics/m.json)).\n\n"
+        "- DGR 0.96 (a share) and 96 %, `metrics/m.json`.\n"
+        "- DGR 96.3 %, `metrics/m.json`.\n"
+        "| 187/201 | [m](../metrics/m.json) |\n\n"
+        "| case | [m](../metrics/m.json) |\n|---|---|\n| peak | 22.6 MB |\n| DGR | 96.1 |\n\n"
+        "No source: 12.5 %.\n\n"
+        "```\nin code: 99.9 %\n```\nand `inline 99.9 %` and prose without numbers.\n"
+    )
+    found_ = [p.split(" -> ")[1] for p in unbacked(page, root=tmp_path)]
+    assert found_ == [
+        "'0.96' is not in metrics/m.json",
+        "'96.3 %' is not in metrics/m.json",
+        "'187/201' is not in metrics/m.json",
+        "'96.1' is not in metrics/m.json",
+        "cites no source for ['12.5 %']",
+    ]
+
+
+def test_a_pipeline_time_is_its_stages_wall_seconds(tmp_path: Path) -> None:
+    page = _repo(tmp_path, {"wall_seconds": 1500.0})
+    (tmp_path / "dvc.lock").write_text(
+        "schema: '2.0'\nstages:\n  a:\n    outs:\n    - path: metrics/m.json\n"
+        "    - path: data/store.zarr\n"
+    )
+    page.write_text(
+        "It takes about 25 min ([lock](../dvc.lock)).\n\n"
+        "It takes about 27 min ([lock](../dvc.lock)).\n\n"
+        "It takes about 40 min ([lock](../dvc.lock)).\n"
+    )
+    assert [p.split(" -> ")[1] for p in unbacked(page, root=tmp_path)] == [
+        "'40 min' is not in dvc.lock"
+    ]
+
+
+def test_changing_one_number_of_results_md_is_caught() -> None:
+    page = REPO / "docs" / "results.md"
+    text = page.read_text()
+    assert unbacked(page, text=text) == []
+    block, fig = next(
+        (b, f) for b in blocks(text) for f in figures(prose(b)) if f.kind in ("number", "percent")
+    )
+    # the shown number moved by a few units of its last digit, to a value no source holds
+    cited = [numbers_in(p) for p in sources(block, page, REPO)]
+    step = 2 * fig.half
+    new = next(
+        v
+        for k in range(1, 100)
+        for v in (fig.value + k * step, fig.value - k * step)
+        if v > 0 and not any(found(dataclasses.replace(fig, value=v), c) for c in cited)
+    )
+    shown = f"{new:.{len(fig.text.split()[0].partition('.')[2])}f}"
+    old = fig.text.split()[0]
+    changed = block.replace(old, shown, 1)
+    problems = unbacked(page, text=text.replace(block, changed, 1))
+    assert len(problems) == 1 and repr(shown) in problems[0].replace(" %", ""), problems
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
+def test_every_result_number_is_in_a_file_its_block_cites(page: Path) -> None:
+    assert unbacked(page) == []
