@@ -9,9 +9,12 @@ in half (renaming a finished output set into place) run under :func:`deferred`.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import signal
+import sys
 import threading
+import time
 from collections.abc import Iterator
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -95,3 +98,40 @@ def deferred() -> Iterator[None]:
         if not _raised:
             _raised = True
             raise Interrupted(signum)
+
+
+PARENT_PID_ENV = "MIMICGEN_PIPE_PARENT_PID"  # set for a child process that must not outlive us
+PARENT_POLL_SECONDS = 0.5  # where the kernel cannot signal a parent's death
+_PR_SET_PDEATHSIG = 1
+
+
+def child_environment() -> dict[str, str]:
+    """The environment for a helper child process (a motion planner, a converter) that
+    :func:`die_with_parent` ties to this process."""
+    return dict(os.environ, **{PARENT_PID_ENV: str(os.getpid())})
+
+
+def die_with_parent(parent: int | None = None) -> None:
+    """In a child process: exit when ``parent`` (default: the pid :func:`child_environment`
+    recorded; none recorded: do nothing) dies, however it dies (``kill -9`` included, which
+    runs none of the parent's cleanup), so that no worker or planner outlives its stage. On
+    Linux the kernel sends SIGKILL (``PR_SET_PDEATHSIG``); elsewhere a thread polls the
+    parent's pid. A parent already gone: exit at once."""
+    if parent is None:
+        if PARENT_PID_ENV not in os.environ:
+            return
+        parent = int(os.environ[PARENT_PID_ENV])
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0:
+                if os.getppid() != parent:  # it died before prctl took effect
+                    os._exit(1)
+                return
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL_SECONDS)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()

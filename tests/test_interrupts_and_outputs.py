@@ -303,3 +303,36 @@ def test_claim_is_exclusive_between_processes(tmp_path):
         release([lock_file(out)])
     assert other().returncode == 0
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_helper_child_dies_with_its_parent_even_on_sigkill(tmp_path):
+    """A motion planner's child process (interrupts.die_with_parent) ends when the stage
+    that started it is killed with SIGKILL, which runs none of the stage's own cleanup."""
+    child = (
+        "from mimicgen_pipe.interrupts import die_with_parent; die_with_parent(); "
+        "import time; time.sleep(120)"
+    )
+    parent = (
+        "import subprocess, sys, time; from mimicgen_pipe.interrupts import child_environment; "
+        f"p = subprocess.Popen([sys.executable, '-c', {child!r}], env=child_environment()); "
+        "print(p.pid, flush=True); time.sleep(120)"
+    )
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen([sys.executable, "-c", parent], stdout=subprocess.PIPE, env=env,
+                            text=True)  # fmt: skip
+    pid = int(proc.stdout.readline())
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 60  # generous: the kernel signals at once
+    while time.monotonic() < deadline and _alive(pid):
+        time.sleep(0.2)
+    assert not _alive(pid), "the child outlived its parent"
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, reaped by init soon, counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False

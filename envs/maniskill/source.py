@@ -21,6 +21,7 @@ from envs import load_task
 from envs.maniskill.tasks import ManiSkillTask
 from mimicgen_pipe import plain_files
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.interrupts import child_environment, die_with_parent
 from mimicgen_pipe.yamlfile import read_text
 
 CONTROL_MODE = "pd_ee_delta_pose"
@@ -208,6 +209,7 @@ def run_motion_planner(
         capture_output=True,
         text=True,
         check=False,
+        env=child_environment(),
     )
     if res.returncode != 0:
         raise RuntimeError(f"motion planning failed:\n{res.stderr[-4000:]}")
@@ -237,6 +239,7 @@ def run_motion_planner(
         capture_output=True,
         text=True,
         check=False,
+        env=child_environment(),
     )
     if conv.returncode != 0:
         raise RuntimeError(f"conversion to {CONTROL_MODE} failed:\n{conv.stderr[-4000:]}")
@@ -258,6 +261,7 @@ def demo_env_id(task: ManiSkillTask) -> str:
 
 
 def _convert_child(task: str, args: list[str]) -> None:
+    die_with_parent()
     from mani_skill.trajectory import replay_trajectory
 
     demo_env_id(load_task("maniskill", task))  # registers the task's env where it is used
@@ -267,6 +271,7 @@ def _convert_child(task: str, args: list[str]) -> None:
 def _plan_child(
     task: str, agent_uid: str, num_demos: str, seed: str, out_dir: str, max_tries: str
 ) -> str:
+    die_with_parent()
     os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401  registers the tasks

@@ -20,27 +20,21 @@ adds for a command a person stops with Ctrl-C or a scheduler stops with SIGTERM 
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import itertools
 import multiprocessing as mp
 import os
 import pickle
 import signal
-import sys
-import threading
-import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 from typing import Any, TypeVar
 
+from mimicgen_pipe.interrupts import PARENT_POLL_SECONDS, die_with_parent
+
 T = TypeVar("T")
 R = TypeVar("R")
-
-_PR_SET_PDEATHSIG = 1
-PARENT_POLL_SECONDS = 0.5
 
 
 class WorkerDied(RuntimeError):
@@ -50,24 +44,6 @@ class WorkerDied(RuntimeError):
 class _RemoteTraceback(Exception):
     def __str__(self) -> str:
         return f"\n\n(in the worker process)\n{self.args[0]}"
-
-
-def _die_with_parent(parent: int) -> None:
-    """Make this process exit when ``parent`` does, however the parent ends."""
-    if sys.platform.startswith("linux"):
-        with contextlib.suppress(OSError, AttributeError):
-            libc = ctypes.CDLL(None, use_errno=True)
-            if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0:
-                if os.getppid() != parent:  # it died before prctl took effect
-                    os._exit(1)
-                return
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(PARENT_POLL_SECONDS)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 def _portable(error: BaseException) -> tuple[BaseException, str]:
@@ -87,7 +63,7 @@ def _worker(
     """Run the blocks sent on ``conn`` until it closes, answering each with (index, result,
     None) or (index, None, error)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _die_with_parent(parent)
+    die_with_parent(parent)
     try:
         initializer(*initargs)
     except BaseException as error:  # noqa: BLE001 - the parent raises it
