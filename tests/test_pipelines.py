@@ -49,7 +49,7 @@ def rerun(
     changed = {
         s
         for s in pool
-        if s.addressing != "code_deps"
+        if s.addressing.rpartition(":")[2] != "code_deps"
         and any(key == n or key.startswith(n + ".") for n in param_names(s, params_file))
     }
     hit = changed.union(*(nx.ancestors(graph, s) & pool for s in changed))
