@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from mimicgen_pipe.contracts import Renderer
 from mimicgen_pipe.errors import InputError
@@ -26,6 +25,7 @@ from mimicgen_pipe.interrupts import Interrupted
 from mimicgen_pipe.outputs import content_digest, run_id
 from mimicgen_pipe.params import Params, data_params
 from mimicgen_pipe.resume import BadBlock, WorkDir, code_digest
+from mimicgen_pipe.rollout_progress import StepCounter, StepProgress
 from mimicgen_pipe.store import StoreView, StoreWriter, image_key, no_episodes, store_cameras
 
 EPISODES_PER_BLOCK = 2  # ~440 pictures per block on stack_cube: 15-30 s of work
@@ -53,6 +53,8 @@ class ObserveJob:
     height: int
     width: int
     make_renderer: RendererMaker
+    # where each worker keeps its count of frames rendered (rollout_progress.StepCounter)
+    progress: str | None = None
 
 
 def check_input(view: StoreView, params: Params, where: str, check_cameras: CameraCheck) -> int:
@@ -124,7 +126,7 @@ class ImageBlockCodec:
         return {k: arrays[k] for k in arrays}
 
 
-_WORKER: tuple[ObserveJob, Renderer, StoreView] | None = None
+_WORKER: tuple[ObserveJob, Renderer, StoreView, StepCounter | None] | None = None
 
 
 def _init_worker(job: ObserveJob) -> None:
@@ -132,19 +134,24 @@ def _init_worker(job: ObserveJob) -> None:
     from mimicgen_pipe.store import open_store
 
     renderer = job.make_renderer(job.task, job.robot, job.width, job.height, job.cameras)
-    _WORKER = (job, renderer, open_store(job.store))
+    counter = StepCounter.open(job.progress)
+    if counter is not None:
+        counter.step()  # stands for a reset: each later call is one frame rendered
+    _WORKER = (job, renderer, open_store(job.store), counter)
 
 
 def _render_block(episodes: list[int]) -> BlockImages:
     """Every step of ``episodes`` pictured by every camera of the worker's job."""
     assert _WORKER is not None
-    job, renderer, view = _WORKER
+    job, renderer, view, counter = _WORKER
     states = view.read_rows("env_state", episodes)
     out = {c: np.empty((len(states), job.height, job.width, 3), np.uint8) for c in job.cameras}
     before = dict(renderer.seconds)
     for t, state in enumerate(states):
         for camera, image in renderer.images(state).items():
             out[camera][t] = image
+        if counter is not None:  # the stage's bar moves while a block renders
+            counter.step()
     seconds = {c: renderer.seconds[c] - before[c] for c in job.cameras}
     return out | {f"seconds/{c}": np.array([seconds[c]]) for c in job.cameras}
 
@@ -179,12 +186,13 @@ def write_observed(
     job: ObserveJob,
     images: Iterator[BlockImages],
     blocks: Sequence[list[int]],
-    label: str,
+    progress: StepProgress,
     work: WorkDir | None = None,
 ) -> dict[str, float]:
     """Into ``writer``: every array of ``view`` for the episodes of ``blocks``, as stored,
     then each camera's images as the blocks' ``images`` come (one block in memory at a time).
-    Returns the seconds spent per camera. ``label`` names the progress bar."""
+    Returns the seconds spent per camera. ``progress``: the bar of frames
+    (:func:`frame_progress`), told of each block written."""
     chosen = [e for block in blocks for e in block]
     for key in view.data_keys:
         writer.array(key, view.read_rows(key, chosen))
@@ -192,7 +200,6 @@ def write_observed(
         writer.episode_field(key, view.episode_field(key)[: len(chosen)])
     rows = {c: writer.rows(image_key(c), (job.height, job.width, 3), np.uint8) for c in job.cameras}
     seconds = dict.fromkeys(job.cameras, 0.0)
-    bar = tqdm(total=len(chosen), desc=label, unit="episode")
     done = 0
     try:
         for block, result in zip(blocks, images, strict=True):
@@ -200,17 +207,23 @@ def write_observed(
                 writer_rows.append(result[camera])
                 seconds[camera] += float(result[f"seconds/{camera}"][0])
             done += len(block)
-            bar.update(len(block))
+            progress.returned(len(result[job.cameras[0]]))
     except Interrupted as exc:
         exc.detail = f"after {done} of {len(chosen)} episodes"
         if work is not None:
             exc.detail += f"; finished blocks kept in {work.path} (the same command resumes)"
         raise
-    finally:
-        bar.close()
     for writer_rows in rows.values():
         writer_rows.close()
     return seconds
+
+
+def frame_progress(label: str, frames: int, workers: int) -> StepProgress:
+    """The observe stage's bar of ``frames`` frames (steps) rendered, shown at once and
+    moved while the workers render (each counts its frames where :class:`ObserveJob`'s
+    ``progress`` says): a block of episodes can take a minute. A frame is an episode of one
+    step to the bar."""
+    return StepProgress(label, frames, 1, workers)
 
 
 def observe_metrics(

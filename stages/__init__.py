@@ -20,7 +20,12 @@ from mimicgen_pipe.params import Params, load_params, with_overrides
 
 def add_selection_arguments(p: argparse.ArgumentParser, robot: bool = False) -> None:
     """--params, and --backend/--task (and --robot) overriding params.yaml's choices."""
-    p.add_argument("--params", default="params.yaml", help="params file (default: params.yaml)")
+    p.add_argument(
+        "--params",
+        default="params.yaml",
+        help="params file (default: params.yaml); default paths lie where the dvc.yaml "
+        "beside it puts them (e.g. quickstart/data/... for quickstart/params.yaml)",
+    )
     p.add_argument("--backend", help="simulator back end (default: params.yaml's backend)")
     p.add_argument("--task", help="task name (default: params.yaml's task)")
     if robot:
@@ -33,7 +38,8 @@ def add_generated_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--variant", required=True, help="reset variant, e.g. D0 or D1")
     p.add_argument(
         "--generated",
-        help="generated store (default: data/generated/<task>_<variant>.zarr; its failed "
+        help="generated store (default: data/generated/<task>_<variant>.zarr, where the "
+        "params file's dvc.yaml keeps data; its failed "
         "attempts are read from <name>_failed.zarr beside it)",
     )
 
@@ -122,8 +128,10 @@ def check_variants(params: Params, path: str) -> None:
 def stage_params(args: argparse.Namespace) -> Params:
     """params.yaml, validated (including its variant lists and obs keys against the task
     specs), with the command line's --backend/--task/--robot applied and train.obs_keys
-    filled in from the task file where params leave it null."""
+    filled in from the task file where params leave it null. Default paths follow the
+    pipeline of the params file's folder (pipelines.use_pipeline)."""
     params = load_params(args.params)
+    pipelines.use_pipeline(args.params)
     check_variants(params, args.params)
     params = with_overrides(
         params,

@@ -18,7 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--parsed",
         help="parsed source store as the pose_noise stage wrote it (default: "
-        "data/pose_noise/<task>.zarr); a clean parsed store is accepted at level none",
+        "data/pose_noise/<task>.zarr, or data/parsed/<task>.zarr in a pipeline without a "
+        "pose_noise stage); a clean parsed store is accepted at level none",
     )
     p.add_argument(
         "--out",

@@ -129,7 +129,7 @@ def resolve(args: argparse.Namespace) -> GenerateJob:
     envs.check_transit(params.backend, g.robot, g.transit, len(spec.arms))
     make_batch = batch_maker(params)  # refuses a batch it cannot run
     executor = stage_executor(params, "generate")  # refuses unsafe Ray settings
-    parsed_path = Path(args.parsed or layout.pose_noise_store(params.task))
+    parsed_path = Path(args.parsed or layout.generate_input(params.task))
     out = output_path(args.out, layout.generated_store(params.task, args.variant))
     metrics_path = output_path(
         args.metrics, layout.metrics_file("generate", params.task, args.variant)

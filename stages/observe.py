@@ -18,6 +18,7 @@ from mimicgen_pipe.camera_images import (
     ObserveJob,
     check_input,
     episode_blocks,
+    frame_progress,
     observe_metrics,
     observe_run_id,
     open_work_dir,
@@ -92,15 +93,19 @@ def run(args: argparse.Namespace) -> None:
         "observe": data_params(params, "observe")["observe"],
     }
     t0 = time.perf_counter()
-    with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
-        images = render_blocks(job, blocks, Executor("local", o.workers), work)
+    frames = int(view.episode_ends[n - 1]) if n else 0
+    label = f"observe {params.task} {args.variant}"
+    with (
+        output_set(metrics_path, out) as (tmp_metrics, tmp_out),
+        frame_progress(label, frames, o.workers) as progress,
+    ):
+        rendering = dataclasses.replace(job, progress=progress.directory)
+        images = render_blocks(rendering, blocks, Executor("local", o.workers), work)
         try:
             with store_writer(tmp_out, kind, view.episode_ends[:n], attrs) as writer:
-                label = f"observe {params.task} {args.variant}"
-                seconds = write_observed(writer, view, job, images, blocks, label, work)
+                seconds = write_observed(writer, view, job, images, blocks, progress, work)
         finally:
             images.close()
-        frames = int(view.episode_ends[n - 1]) if n else 0
         metrics = observe_metrics(tmp_out, job, frames, n, seconds)
         metrics["seconds"] = round(time.perf_counter() - t0, 1)
         identity = metrics_identity(

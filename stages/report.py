@@ -86,9 +86,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--plots",
-        default="plots",
         help="folder of the coverage heat maps and the train and evaluate CSVs (default: "
-        "plots; the suite's report has none)",
+        "plots, beside the params file's metrics; the suite's report has none)",
     )
     p.add_argument(
         "--paper",
@@ -105,11 +104,12 @@ def run(args: argparse.Namespace) -> None:
     suite, transit, transfer = args.suite, args.transit, args.transfer
     # None: the default pipeline's
     home = SUITE if suite else TRANSIT if transit else TRANSFER if transfer else None
-    metrics_dir = Path(args.metrics or (home / "metrics" if home else "metrics"))
+    metrics_dir = Path(args.metrics or (home / "metrics" if home else layout.metrics_dir()))
+    plots_dir = Path(args.plots or layout.plots_dir())
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
     out = output_path(args.out, home / "report" if home else layout.report_dir())
     # fails at once if another run writes the report, or if out holds anything else
-    claim((out, REPORT_DIR), inputs=[metrics_dir, args.plots])
+    claim((out, REPORT_DIR), inputs=[metrics_dir, plots_dir])
     paper = load_paper_results(args.paper)
     ms = read_metrics_folder(metrics_dir)
     images: dict[str, bytes] = {}  # image path in the report -> PNG bytes embedded in the HTML
@@ -129,10 +129,10 @@ def run(args: argparse.Namespace) -> None:
         images, title = dict(figures), "MimicGen task suite"
     else:
         variants = params.generate.variants
-        heatmaps = read_heatmaps(args.plots, params.task, variants)
+        heatmaps = read_heatmaps(plots_dir, params.task, variants)
         # referred to where the coverage stage writes them, embedded in the HTML
         names = {v: link(png, out) for v, png in heatmaps.items()}
-        figures = draw_curves(params.task, *read_curves(ms, params, args.plots))
+        figures = draw_curves(params.task, *read_curves(ms, params, plots_dir))
         images = {names[v]: png.read_bytes() for v, png in heatmaps.items()} | figures
         media = read_media(ms, params.task, params.backend, variants)
         spec = envs.task_spec(params.backend, params.task)

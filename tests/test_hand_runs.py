@@ -8,9 +8,11 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from mimicgen_pipe import pipelines
+from mimicgen_pipe import layout, pipelines
+from mimicgen_pipe.store import read_store, write_store
 from tests.conftest import cli
 
 REPO = Path(__file__).resolve().parents[1]
@@ -119,3 +121,93 @@ def test_committed_locks_track_the_default_outputs():
     assert o == pipelines.Owner("dvc.yaml", "export@D0")
     stages = json.dumps(str(pipelines.owner(REPO / "data/generated/stack_cube_D1.zarr")))
     assert "generate@D1" in stages
+
+
+def quickstart_repo(root: Path) -> Path:
+    """A DVC repository with the committed default and quickstart pipelines (dvc.yaml,
+    dvc.lock, params.yaml), the quickstart's source demos in quickstart/data/source/ (one
+    short stack_cube demo) and nothing in the default pipeline's data/."""
+    (root / ".dvc").mkdir()
+    for name in ("dvc.yaml", "dvc.lock", "params.yaml"):
+        shutil.copy(REPO / name, root / name)
+        (root / "quickstart").mkdir(exist_ok=True)
+        shutil.copy(REPO / "quickstart" / name, root / "quickstart" / name)
+    t = 80
+    eye = np.broadcast_to(np.eye(4), (t, 4, 4)).copy()
+    step = {"actions": np.zeros((t, 7), np.float32), "gripper": np.zeros(t, np.float32),
+            "subtask_signals/grasp_cubeA": np.arange(t) > 10}  # fmt: skip
+    for key in ("eef_pose", "target_pose", "object_poses/cubeA", "object_poses/cubeB"):
+        step[key] = eye
+    steps = [step]
+    source = root / "quickstart/data/source/stack_cube.zarr"
+    write_store(source, "source", steps, {}, {"task": "stack_cube"})
+    return root
+
+
+def test_a_hand_run_follows_its_params_files_pipeline(tmp_path):
+    """`parse --params quickstart/params.yaml` and no paths reads the quickstart's source
+    demos and writes the quickstart's parsed store, under scratch/ as the quickstart's lock
+    tracks it; the default pipeline's data/ is never looked at."""
+    root = quickstart_repo(tmp_path)
+    res = cli("parse", "--params", "quickstart/params.yaml", cwd=root)
+    out = "quickstart/data/parsed/stack_cube.zarr"
+    assert f"{out} is quickstart/dvc.yaml's (stage parse)" in res.stderr
+    assert "`dvc repro quickstart/dvc.yaml:parse`" in res.stderr
+    assert read_store(root / "scratch" / out).n_episodes == 1
+    assert not (root / out).exists() and not (root / "data").exists()
+
+
+@pytest.mark.parametrize(
+    ("stage", "missing"),
+    [
+        ("coverage", "quickstart/data/generated/stack_cube_D0.zarr"),
+        ("export", "quickstart/data/generated/stack_cube_D0.zarr"),
+        ("generate", "quickstart/data/parsed/stack_cube.zarr"),
+    ],
+)
+def test_a_missing_input_names_the_params_files_pipeline(tmp_path, stage, missing):
+    """A hand run with the quickstart's params looks for the quickstart's input and names
+    the quickstart's stage that makes it."""
+    root = quickstart_repo(tmp_path)
+    res = cli(stage, "--params", "quickstart/params.yaml", "--variant", "D0", cwd=root,
+              check=False)  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    (line,) = [ln for ln in res.stderr.splitlines() if "error:" in ln]
+    assert f"{missing}: store not found" in line
+    assert "of quickstart/dvc.yaml: run `dvc repro quickstart/dvc.yaml:" in line
+
+
+def test_a_path_two_pipelines_track_is_named_as_the_running_ones(tmp_path, monkeypatch):
+    """data/sub_store.zarr in both locks: its owner is the pipeline of the params file's
+    folder, and the default pipeline's layout is unchanged."""
+    monkeypatch.setattr(pipelines, "_current", None)
+    root = tracked_repo(tmp_path)
+    lock = LOCK + "  gen@D0:\n    cmd: x\n    outs:\n    - path: data/sub_store.zarr\n"
+    (root / "dvc.lock").write_text(lock)
+    store = root / "data/sub_store.zarr"
+    pipelines.use_pipeline(root / "params.yaml")
+    assert pipelines.owner(store) == pipelines.Owner("dvc.yaml", "gen@D0")
+    assert pipelines.layout_roots() == {}
+    pipelines.use_pipeline(root / "sub/params.yaml")
+    assert pipelines.owner(store) == pipelines.Owner("sub/dvc.yaml", "gen@D0")
+    assert pipelines.layout_roots() == {}  # sub/ keeps nothing of its own
+
+
+def test_layout_roots_of_the_committed_pipelines(monkeypatch):
+    """Each committed pipeline's default paths, as its dvc.yaml names them."""
+    monkeypatch.setattr(pipelines, "_current", None)
+    monkeypatch.chdir(REPO)
+    pipelines.use_pipeline("quickstart/params.yaml")
+    assert layout.generated_store("stack_cube", "D0") == Path(
+        "quickstart/data/generated/stack_cube_D0.zarr"
+    )
+    assert layout.report_dir() == Path("quickstart/report")
+    pipelines.use_pipeline("suite/params.yaml")  # stores under data/, metrics under suite/
+    assert layout.parsed_store("stack") == Path("data/parsed/stack.zarr")
+    assert layout.metrics_file("generate", "stack", "D0") == Path(
+        "suite/metrics/generate_stack_D0.json"
+    )
+    pipelines.use_pipeline("params.yaml")
+    assert layout.metrics_file("export", "stack_cube", "D0") == Path(
+        "metrics/export_stack_cube_D0.json"
+    )

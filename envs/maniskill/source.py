@@ -11,11 +11,14 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
 import numpy as np
+from tqdm import tqdm
 
 from envs import load_task
 from envs.maniskill.tasks import ManiSkillTask
@@ -194,26 +197,8 @@ def run_motion_planner(
         "import sys; from envs.maniskill.source import _plan_child; "
         "print(_plan_child(*sys.argv[1:]))"
     )
-    res = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            code,
-            task,
-            agent_uid,
-            str(num_demos),
-            str(seed),
-            str(out_dir),
-            str(max_tries),
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-        env=child_environment(),
-    )
-    if res.returncode != 0:
-        raise RuntimeError(f"motion planning failed:\n{res.stderr[-4000:]}")
-    planned, failed = (int(w) for w in res.stdout.strip().splitlines()[-1].split())
+    args = [task, agent_uid, str(num_demos), str(seed), str(out_dir), str(max_tries)]
+    planned, failed = _run_planner([sys.executable, "-c", code, *args], task, num_demos)
     raw = out_dir / "planned.h5"
     # ManiSkill's converter, in a child that has registered the env the demos were recorded in
     convert = (
@@ -247,6 +232,55 @@ def run_motion_planner(
     if not converted:
         raise RuntimeError(f"conversion wrote no file in {out_dir}")
     return converted[0], planned, failed
+
+
+# the line the planner's child prints after each seed it tried: "<prefix> <kept> <failed>"
+PLANNED = "mimicgen-pipe planned:"
+
+
+def planned_counts(line: str) -> tuple[int, int] | None:
+    """(kept, failed) plans of a progress line of the planner's child; None for any other
+    line (what the planners print themselves, the child's result)."""
+    words = line.removeprefix(PLANNED).split() if line.startswith(PLANNED) else []
+    if len(words) != 2 or not all(w.isdigit() for w in words):
+        return None
+    return int(words[0]), int(words[1])
+
+
+def follow_planner(lines: Iterable[str], bar: tqdm) -> str:
+    """The last line of the planner's child's output ``lines`` other than a progress line
+    (its result, "<kept> <failed>"), after moving ``bar`` (of demos kept) with each
+    progress line."""
+    result = ""
+    for line in lines:
+        if (counts := planned_counts(line)) is not None:
+            bar.update(counts[0] - bar.n)
+            bar.set_postfix(failed=counts[1])  # the bar counts the demos kept
+        elif line.strip():
+            result = line
+    return result
+
+
+def _run_planner(cmd: list[str], task: str, num_demos: int) -> tuple[int, int]:
+    """Run the planner's child ``cmd`` with a bar of the demos it has kept: its (kept,
+    failed) plans. Its stderr goes to a file, so that a full pipe never stops it."""
+    bar = tqdm(total=num_demos, desc=f"source {task}: planning", unit="demo", file=sys.stderr)
+    with bar, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=child_environment()
+        )
+        try:
+            result = follow_planner(proc.stdout or (), bar)
+            code = proc.wait()
+        except BaseException:  # an interrupted stage: the child goes with it
+            proc.kill()
+            proc.wait()
+            raise
+        if code != 0:
+            err.seek(0)
+            raise RuntimeError(f"motion planning failed:\n{err.read()[-4000:]}")
+    kept, failed = (int(w) for w in result.split())
+    return kept, failed
 
 
 def demo_env_id(task: ManiSkillTask) -> str:
@@ -309,6 +343,7 @@ def _plan_child(
         ok = res != -1 and bool(res[-1]["success"].item())
         env.flush_trajectory(save=ok)
         kept, failed = kept + ok, failed + (not ok)
+        print(PLANNED, kept, failed, flush=True)  # the stage's progress bar
         if kept == int(num_demos):
             break
     env.close()
