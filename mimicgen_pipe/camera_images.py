@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from mimicgen_pipe.camera_calibration import ATTR as CALIBRATION
 from mimicgen_pipe.contracts import Renderer
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor, map_blocks
@@ -224,6 +225,20 @@ def frame_progress(label: str, frames: int, workers: int) -> StepProgress:
     ``progress`` says): a block of episodes can take a minute. A frame is an episode of one
     step to the bar."""
     return StepProgress(label, frames, 1, workers)
+
+
+def observed_attrs(
+    attrs: Mapping[str, Any], params: Params, calibration: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The observed store's attributes: its input store's, plus each camera's size, the
+    cameras' calibration (``calibration``: camera_calibration's attribute, from the back end)
+    and the observe params that shaped it."""
+    o = params.observe
+    return dict(attrs) | {
+        "cameras": {c: {"height": o.height, "width": o.width} for c in o.cameras},
+        CALIBRATION: calibration,
+        "observe": data_params(params, "observe")["observe"],
+    }
 
 
 def observe_metrics(

@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 
 import envs
-from mimicgen_pipe import camera_calibration as calibration
 from mimicgen_pipe import layout
 from mimicgen_pipe.camera_images import (
     ImageBlockCodec,
@@ -21,6 +20,7 @@ from mimicgen_pipe.camera_images import (
     frame_progress,
     observe_metrics,
     observe_run_id,
+    observed_attrs,
     open_work_dir,
     render_blocks,
     write_observed,
@@ -29,7 +29,6 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set, store_kind
-from mimicgen_pipe.params import data_params
 from mimicgen_pipe.store import open_store, store_writer
 from stages import add_selection_arguments, episode_count, output_path, stage_params
 
@@ -86,12 +85,8 @@ def run(args: argparse.Namespace) -> None:
     blocks = episode_blocks(n)
     run_id = observe_run_id(params, a, view.read_rows("env_state", range(n)))
     work = open_work_dir(out, run_id, ImageBlockCodec(blocks, view.lengths, job))
-    attrs = dict(a) | {
-        "cameras": {c: {"height": o.height, "width": o.width} for c in o.cameras},
-        # each camera's K and pose (mimicgen_pipe/camera_calibration.py), from the back end
-        calibration.ATTR: envs.camera_calibration(o.cameras, o.height, o.width),
-        "observe": data_params(params, "observe")["observe"],
-    }
+    # each camera's K and pose (mimicgen_pipe/camera_calibration.py), from the back end
+    attrs = observed_attrs(a, params, envs.camera_calibration(o.cameras, o.height, o.width))
     t0 = time.perf_counter()
     frames = int(view.episode_ends[n - 1]) if n else 0
     label = f"observe {params.task} {args.variant}"
