@@ -29,14 +29,6 @@ PIPELINES = (
 STALE_SUITE_EDGES = frozenset(
     (stage, path)
     for path, stages in {
-        "data/parsed/peg_insertion.zarr": (
-            "generate_suite@peg_insertion-D0",
-            "generate_suite@peg_insertion-D1",
-            "generate_suite@peg_insertion-D2",
-            "generate_suite_object_transfer@peg_insertion",
-            "generate_suite_policy@peg_insertion-D1",
-            "generate_suite_scaling",
-        ),
         "data/parsed/stack_pyramid.zarr": (
             "generate_suite@stack_pyramid-D0",
             "generate_suite@stack_pyramid-D1",
@@ -64,7 +56,6 @@ STALE_SUITE_EDGES = frozenset(
             "generate_suite@stack_tower-D1",
             "generate_suite@stack_tower-D2",
         ),
-        "data/source/peg_insertion.zarr": ("train_suite@peg_insertion",),
         "data/source/stack_pyramid.zarr": ("train_suite@stack_pyramid",),
         "data/source/plug_charger.zarr": ("train_suite@plug_charger",),
         "data/source/drawer_cleanup.zarr": ("train_suite_d0@drawer_cleanup",),
