@@ -6,12 +6,11 @@ outputs before running its command; a stage that then refused its params had los
 from __future__ import annotations
 
 import argparse
-import os
-import stat
 from pathlib import Path
 
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.params import Params, load_params
+from mimicgen_pipe.plain_files import regular_file
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -25,13 +24,12 @@ def named_files(params: Params) -> dict[str, str]:
 
 def check_named_file(params_file: str, key: str, path: str) -> None:
     """A file a params key names must exist and be a regular file (not a folder, a FIFO or
-    a device, which a reader would block on or read without end)."""
+    a device, which a reader would block on or read without end): plain_files'
+    check, its error led by the params file and key."""
     try:
-        mode = os.stat(path).st_mode
-    except OSError as exc:
-        raise InputError(f"{params_file}: {key}: {path}: {exc.strerror.lower()}") from None
-    if not stat.S_ISREG(mode):
-        raise InputError(f"{params_file}: {key}: {path}: expected a regular file")
+        regular_file(path, "file")
+    except InputError as exc:
+        raise InputError(f"{params_file}: {key}: {exc}") from None
 
 
 def run(args: argparse.Namespace) -> None:

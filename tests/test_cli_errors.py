@@ -305,9 +305,12 @@ def test_check_passes_every_pipelines_params(params_file):
 @pytest.mark.parametrize(
     "source,expected",
     [
-        ("{from_file: input}", "source.from_file: input: expected a regular file"),
-        ("{from_file: input/fifo.h5}", "source.from_file: input/fifo.h5: expected a regular file"),
-        ("{from_file: input/none.h5}", "source.from_file: input/none.h5: no such file"),
+        ("{from_file: input}", "source.from_file: input: cannot read the file (it is a folder"),
+        (
+            "{from_file: input/fifo.h5}",
+            "source.from_file: input/fifo.h5: cannot read the file (it is a FIFO, not a regular",
+        ),
+        ("{from_file: input/none.h5}", "source.from_file: input/none.h5: file not found"),
         ("{num_demoz: 3}", "source.num_demoz: unknown key"),
     ],
 )
