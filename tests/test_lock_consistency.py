@@ -35,12 +35,6 @@ STALE_SUITE_EDGES = frozenset(
             "generate_suite@stack_pyramid-D2",
             "generate_suite_policy@stack_pyramid-D1",
         ),
-        "data/parsed/plug_charger.zarr": (
-            "generate_suite@plug_charger-D0",
-            "generate_suite@plug_charger-D1",
-            "generate_suite@plug_charger-D2",
-            "generate_suite_policy@plug_charger-D1",
-        ),
         "data/parsed/drawer_cleanup.zarr": (
             "generate_suite@drawer_cleanup-D0",
             "generate_suite@drawer_cleanup-D1",
@@ -57,11 +51,9 @@ STALE_SUITE_EDGES = frozenset(
             "generate_suite@stack_tower-D2",
         ),
         "data/source/stack_pyramid.zarr": ("train_suite@stack_pyramid",),
-        "data/source/plug_charger.zarr": ("train_suite@plug_charger",),
         "data/source/drawer_cleanup.zarr": ("train_suite_d0@drawer_cleanup",),
         "data/generated/peg_insertion_D0_train.zarr": ("train_suite@peg_insertion",),
         "data/generated/stack_pyramid_D0_train.zarr": ("train_suite@stack_pyramid",),
-        "data/generated/plug_charger_D0_train.zarr": ("train_suite@plug_charger",),
         "data/generated/pull_cube_tool_D0_train.zarr": ("train_suite@pull_cube_tool",),
         "data/generated/drawer_cleanup_D0_train.zarr": ("train_suite_d0@drawer_cleanup",),
         "data/generated/peg_insertion_square_D0_train.zarr": (
