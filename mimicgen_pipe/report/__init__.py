@@ -59,6 +59,7 @@ def build_report(
     settings = method_settings(params)
     return [
         *method.intro_blocks(task, paper_task, settings),
+        *method.source_file_blocks(params, ms),
         *method.dgr_blocks(params, spec, settings, ms, paper),
         *method.policy_blocks(params, paper_task, ms, paper),
         *curve_blocks(task, curves),

@@ -48,6 +48,21 @@ def intro_blocks(task: str, paper_task: str, settings: Mapping[str, Any]) -> lis
     ]
 
 
+def source_file_blocks(params: Params, ms: MetricsSet) -> list[Block]:
+    """A sentence naming the file the main task's source demos were brought in from, with
+    its sha256, as the source stage's metrics record them (source.from_file); none for the
+    demonstrator's demos."""
+    found = ms.find(stage="source", task=params.task, backend=params.backend)
+    return [
+        Text(
+            f"Source demos brought in from `{m.values['source_file']}` (sha256 "
+            f"`{m.values.get('source_file_sha256', MISSING)}`)."
+        )
+        for m in found
+        if "source_file" in m.values
+    ]
+
+
 def dgr_blocks(
     params: Params,
     spec: TaskSpec,
