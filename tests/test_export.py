@@ -123,9 +123,17 @@ MIMICGEN_OBS = {"robot0_eef_pos": ("eef_pos",), "robot0_eef_quat": ("eef_quat",)
 MIMICGEN_CAMERAS = {"agentview_image": "agentview", "robot0_eye_in_hand_image": "eye_in_hand"}
 
 
+XYZW = [1, 2, 3, 0]  # a wxyz quaternion's components in robosuite's order, xyzw
+
+
 def mimicgen_obs(ep: dict, t: int, key: str) -> np.ndarray:
-    """Step ``t``'s value of the robomimic export's ``obs/<key>`` from the episode's arrays."""
-    return np.concatenate([ep[f"obs/{ours}"][t] for ours in MIMICGEN_OBS[key]])
+    """Step ``t``'s value of the robomimic export's ``obs/<key>`` from the episode's arrays
+    (quaternions reordered to robosuite's xyzw)."""
+    rows = [ep[f"obs/{ours}"][t] for ours in MIMICGEN_OBS[key]]
+    ours = MIMICGEN_OBS[key]
+    return np.concatenate(
+        [r[XYZW] if o in QUAT_POSES else r for o, r in zip(ours, rows, strict=True)]
+    )
 
 
 # the task's success after each step: episode 0 from 3 steps before its end, episode 1 at its
@@ -222,6 +230,44 @@ def test_robomimic_export_reads_back_with_robomimics_dataset_class(tmp_path):
             f["data/demo_2/src_demo_inds"][:], store.episodes["source_demo"][2]
         )
         assert f["data/demo_0"].attrs["num_samples"] == 12
+
+
+def test_robomimic_quaternions_are_robosuites_xyzw_and_the_file_says_what_it_holds(tmp_path):
+    """robot0_eef_quat (and every object quaternion, in obs/object too) is robosuite's xyzw:
+    the store's eef pose rotation converted by scipy (scalar last), and the simulator's wxyz
+    read reordered. data.attrs["mimicgen_pipe"] records what made the file and its
+    conventions (xyzw); robomimic's own env_meta reader finds robomimic's fields, of a
+    non-robosuite env, with a note saying robomimic cannot build it."""
+    import robomimic.utils.env_utils as env_utils
+    from scipy.spatial.transform import Rotation
+
+    store = synthetic_store(tmp_path / "g.zarr")
+    path, _ = exporters.write(store, "robomimic", tmp_path, export_info(store))
+    rotations = {k: store.poses(pose)[:, :3, :3] for k, pose in QUAT_POSES.items()}
+    with h5py.File(path, "r") as f:
+
+        def rows(name: str) -> np.ndarray:
+            return np.concatenate([f[f"data/demo_{i}/obs/{name}"][:] for i in range(3)])
+
+        written = {"eef_quat": rows("robot0_eef_quat"), "cubeA_quat": rows("cubeA_quat")}
+        obj = rows("object")
+        made = json.loads(f["data"].attrs["mimicgen_pipe"])
+        # as robomimic's FileUtils.get_env_metadata_from_dataset reads it
+        env_meta = json.loads(f["data"].attrs["env_args"])
+    np.testing.assert_array_equal(obj[:, 3:7], written["cubeA_quat"])  # after cubeA_pos
+    for key, quat in written.items():
+        np.testing.assert_array_equal(quat, store.data[f"obs/{key}"][:, XYZW])
+        scipy_xyzw = Rotation.from_matrix(rotations[key]).as_quat()
+        sign = np.sign(np.sum(scipy_xyzw * quat, axis=1, keepdims=True))  # q and -q agree
+        np.testing.assert_allclose(quat, sign * scipy_xyzw, atol=1e-6)
+        assert not np.allclose(quat, store.data[f"obs/{key}"], atol=1e-3)  # not wxyz
+    assert made == provenance(quaternion_order="xyzw")
+    assert not env_utils.is_robosuite_env(env_meta=env_meta)
+    assert (env_meta["env_name"], env_meta["type"]) == ("maniskill:stack_cube", 2)
+    assert env_meta["env_kwargs"] == {"backend": "maniskill", "task": "stack_cube",
+                                      "robot": "panda"}  # fmt: skip
+    assert "not a robosuite or gym env" in env_meta["note"]
+    assert "robomimic cannot build it" in env_meta["note"]
 
 
 LEARNERS = REPO / "tests/learners"  # scripts run in the learners' check venv
