@@ -97,6 +97,11 @@ def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(quickstart, t
     summary = json.loads((q / "report/summary.json").read_text())
     assert summary["dgr_D0"] == round(ran["dgr"], 1)
     assert "DGR" in (q / "report/report.html").read_text()
+    # one kept and one failed episode, shown in the report
+    report = (q / "report/report.md").read_text()
+    for name in ("kept_0", "failed_0"):
+        assert (q / f"media/stack_cube_D0/{name}.mp4").stat().st_size > 0
+        assert f"../media/stack_cube_D0/{name}.gif" in report
 
     import h5py
 
