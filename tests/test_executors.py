@@ -27,7 +27,7 @@ import zarr
 
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.resume import WorkDir, code_digest, work_dir_of
-from tests.conftest import REPO, cli
+from tests.conftest import PYBULLET_STACK, REPO, cli, stages_copied_to
 from tests.test_interrupts_and_outputs import alive, children, own_lines, start
 from tests.test_store_integrity import tree_digest
 
@@ -179,7 +179,7 @@ def test_closing_the_iterator_early_leaves_no_worker():
 
 # ---- real generation on every executor ----
 
-PARAMS = "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"
+PARAMS = PYBULLET_STACK
 ATTEMPTS = 48  # three blocks
 STORES = ("stack_D0.zarr", "stack_D0_failed.zarr")
 
@@ -193,12 +193,10 @@ def generate(work: Path, name: str, generate_params: str, **kw) -> subprocess.Co
 
 
 @pytest.fixture(scope="module")
-def work(tmp_path_factory) -> Path:
+def work(tmp_path_factory, pybullet_stack) -> Path:
     """Three parsed PyBullet source demos of stack."""
-    work = tmp_path_factory.mktemp("executors")
+    work = stages_copied_to(tmp_path_factory.mktemp("executors"), pybullet_stack)
     (work / "params.yaml").write_text(PARAMS)
-    cli("source", cwd=work)
-    cli("parse", cwd=work)
     return work
 
 
