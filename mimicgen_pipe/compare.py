@@ -1,6 +1,7 @@
 """Runs of one pipeline side by side, from ``dvc exp show --json``: one column per commit or
 experiment, one row per params key that differs between them and per headline number of the
-pipeline (its report's summary.json), with each number's change from the first column. A
+pipeline (its report's summary.json), with each number's change from the first column and,
+where the summary holds them, its 95% interval's bounds (``90.9 [72.2–97.5]``). A
 transposed view, so that many numbers and a few runs fit a terminal."""
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.report.fmt import CI_BOUNDS
 
 
 @dataclass(frozen=True)
@@ -143,18 +145,28 @@ def _cell(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value)  # true, null, [D0, D1]
 
 
-def _number(value: float | None, first: float | None) -> str:
+def _number(numbers: Mapping[str, float], key: str, first: float | None) -> str:
+    """``key``'s number in a run, its 95% interval where the run has both bounds, and its
+    change from ``first``."""
+    value = numbers.get(key)
     if value is None:
         return "-"
+    lo, hi = (numbers.get(key + s) for s in CI_BOUNDS)
+    shown = f"{value:g}" if lo is None or hi is None else f"{value:g} [{lo:g}–{hi:g}]"
     if first is None or value == first:
-        return f"{value:g}"
-    return f"{value:g} ({value - first:+.1f})"
+        return shown
+    return f"{shown} ({value - first:+.1f})"
+
+
+def _bound_of(key: str, keys: set[str]) -> bool:
+    """Whether ``key`` is an interval bound of another key in ``keys`` (shown in its row)."""
+    return any(key.endswith(s) and key[: -len(s)] in keys for s in CI_BOUNDS)
 
 
 def table(runs: Sequence[Column], all_params: bool = False) -> list[list[str]]:
     """Rows of the comparison, a header first: the params that differ between ``runs`` (or
     every one, ``all_params``), then every headline number any run has, each run's value
-    followed by its change from the first run's."""
+    with its interval followed by its change from the first run's."""
     header = ["", *(r.name for r in runs)]
     keys = sorted({k for r in runs for k in r.params})
     rows = [header]
@@ -162,9 +174,10 @@ def table(runs: Sequence[Column], all_params: bool = False) -> list[list[str]]:
         values = [r.params.get(k, _ABSENT) for r in runs]
         if all_params or any(v != values[0] for v in values):
             rows.append([k, *(_cell(v) for v in values)])
-    for k in sorted({k for r in runs for k in r.numbers}):
+    names = {k for r in runs for k in r.numbers}
+    for k in sorted(k for k in names if not _bound_of(k, names)):
         first = runs[0].numbers.get(k)
-        rows.append([k, *(_number(r.numbers.get(k), first) for r in runs)])
+        rows.append([k, *(_number(r.numbers, k, first) for r in runs)])
     return rows
 
 

@@ -199,7 +199,6 @@ def rollout(
     cameras: Any = None,
     term_signals: Sequence[str] = (),
     arms: Sequence[str] = (ARM,),
-    on_step: Callable[[Env], None] | None = None,
 ) -> Rollout:
     """One episode: reset the scene from ``seed``, act until the task succeeds or ``horizon``
     steps have run. ``cameras``: for a policy that reads images, a renderer of the env's
@@ -207,13 +206,9 @@ def rollout(
     ``<camera>_image``, the store's ``obs/<camera>_image`` (the same picture of the same
     state as the observe stage takes). ``term_signals``: the term signals of the subtasks
     but the last, in order, whose ends the rollout records in its ``subtask_ends``. ``arms``:
-    the task's arms (spec.arms), whose end effectors the observation reads. ``on_step``: a
-    reader of the env, called after the reset and after every step (a diagnosis that follows
-    the scene through the stage's own rollout)."""
+    the task's arms (spec.arms), whose end effectors the observation reads."""
     env.reset(seed=seed, variant=variant)
     policy.reset(seed)
-    if on_step is not None:
-        on_step(env)
     ends: list[int] = []
     before = env.subtask_signals() if term_signals else {}
     for t in range(horizon):
@@ -226,8 +221,6 @@ def rollout(
             if held[name] and not before[name]:
                 ends.append(t + 1)
             before = held
-        if on_step is not None:
-            on_step(env)
         if env.is_success():
             return Rollout(seed, True, t + 1, _padded(ends, term_signals))
     return Rollout(seed, False, horizon, _padded(ends, term_signals))
@@ -282,6 +275,24 @@ class _Worker:
                 close()
 
 
+@dataclass
+class _Counted:
+    """``policy``, whose episodes and steps ``counter`` counts as a rollout runs: its reset
+    starts an episode, each action it chooses is one step (the step that action is for)."""
+
+    policy: ClosedLoopPolicy
+    counter: StepCounter
+
+    def reset(self, seed: int) -> None:
+        self.policy.reset(seed)
+        self.counter.step()  # the call that follows a reset counts no step
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        action = self.policy.act(obs)
+        self.counter.step()
+        return action
+
+
 _WORKER: _Worker | None = None
 
 
@@ -304,9 +315,9 @@ def _run_block(task: tuple[str, list[int]]) -> tuple[str, list[Rollout]]:
     out = []
     for s in seeds:
         t0 = time.perf_counter()
-        on_step = counter.step if counter is not None else None
-        r = rollout(env, policy, s, job.variant, job.horizon, job.objects, cameras,
-                    job.term_signals, job.arms, on_step)  # fmt: skip
+        counted = policy if counter is None else _Counted(policy, counter)
+        r = rollout(env, counted, s, job.variant, job.horizon, job.objects, cameras,
+                    job.term_signals, job.arms)  # fmt: skip
         if counter is not None:
             counter.episode(r.steps, time.perf_counter() - t0)
         out.append(r)

@@ -19,6 +19,7 @@ import numpy as np
 
 from mimicgen_pipe import poses
 
+QUAT_ORDER = "wxyz"  # the order of every quaternion key's four components (scalar first)
 EEF_QUAT_REFERENCE = np.array([0.0, 1.0, 0.0, 0.0])  # wxyz: 180° about world x, pointing down
 
 
@@ -48,6 +49,11 @@ def is_robot_key(key: str) -> bool:
     eef_to_<obj>_pos is the object's, seen from the gripper."""
     own = re.sub(r"^[A-Za-z0-9]+_(?=eef_|gripper_)", "", key)
     return own.startswith(("eef_", "gripper_")) and not own.startswith("eef_to_")
+
+
+def is_quat_key(key: str) -> bool:
+    """A quaternion's key (eef_quat, cubeA_quat, left_eef_quat): four values in QUAT_ORDER."""
+    return key.endswith("_quat")
 
 
 def _is_arms(key: str) -> bool:

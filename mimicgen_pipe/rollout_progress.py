@@ -36,10 +36,10 @@ RECORD = struct.Struct("<qqqd")
 
 
 class StepCounter:
-    """A worker's running counts, in its file ``<directory>/<pid>``. :meth:`step` is a
-    rollout's ``on_step`` (called after the reset and after every step); :meth:`episode`
-    ends an episode. A write that fails (the evaluator has ended and removed its
-    directory) stops the writing, never the rollouts."""
+    """A worker's running counts, in its file ``<directory>/<pid>``. :meth:`step` is called
+    once after an episode's reset and once for each of its steps; :meth:`episode` ends an
+    episode. A write that fails (the evaluator has ended and removed its directory) stops
+    the writing, never the rollouts."""
 
     def __init__(self, directory: str) -> None:
         self.path = Path(directory) / str(os.getpid())

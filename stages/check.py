@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mimicgen_pipe import source_inputs
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.params import Params, load_params
 from mimicgen_pipe.plain_files import regular_file
@@ -34,6 +35,8 @@ def check_named_file(params_file: str, key: str, path: str) -> None:
 
 def run(args: argparse.Namespace) -> None:
     params = load_params(args.params)
+    if params.source.from_file is not None:  # in the folder its pipeline's source stage tracks
+        source_inputs.check_place(args.params, params.source.from_file)
     for key, path in named_files(params).items():
         check_named_file(args.params, key, path)
     print(f"check: {Path(args.params)}: valid")

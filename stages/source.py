@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 from pathlib import Path
 
 import envs
-from mimicgen_pipe import layout, robomimic_source, source_files
+from mimicgen_pipe import layout, robomimic_source, source_files, source_inputs
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.outputs import claim, output_set, store_kind
 from mimicgen_pipe.params import Params, data_params
+from mimicgen_pipe.plain_files import regular_file
 from mimicgen_pipe.recording import record_source_demos
 from stages import add_selection_arguments, output_path, stage_params
 
@@ -20,6 +22,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_selection_arguments(p)
     p.add_argument("--out", help="output store (default: data/source/<task>.zarr)")
     p.add_argument("--metrics", help="metrics JSON (default: metrics/source_<task>.json)")
+    p.add_argument(
+        "--from-file",
+        metavar="PATH",
+        help="source demos from this file instead of params' source.from_file (a hand run "
+        "may name any file; in a pipeline, params' source.from_file lies in its inputs/)",
+    )
+
+
+def with_source_file(params: Params, args: argparse.Namespace) -> Params:
+    """``params`` with --from-file applied, the file checked to be a regular file; without
+    it, params' own source.from_file checked to lie in the inputs folder that its
+    pipeline's source stage tracks (source_inputs.check_place), as the check stage does."""
+    if args.from_file is None:
+        if params.source.from_file is not None:
+            source_inputs.check_place(args.params, params.source.from_file)
+        return params
+    try:
+        regular_file(args.from_file, "file")
+    except InputError as exc:
+        raise InputError(f"--from-file {exc}") from None
+    source = dataclasses.replace(params.source, from_file=args.from_file)
+    return dataclasses.replace(params, source=source)
 
 
 def check_source_file(params: Params, params_path: str) -> int:
@@ -50,19 +74,23 @@ def check_source_file(params: Params, params_path: str) -> int:
 
 
 def run(args: argparse.Namespace) -> None:
-    params = stage_params(args)
+    params = with_source_file(stage_params(args), args)
     spec = envs.task_spec(params.backend, params.task)
     p = params.source
     envs.check_robot(params.backend, p.robot)
     if p.from_file is not None:  # read and checked whole before the simulator starts
         check_source_file(params, args.params)
+    brought_in = source_inputs.file_identity(p.from_file)  # {} for the demonstrator
     out = output_path(args.out, layout.source_store(params.task))
     metrics_path = output_path(args.metrics, layout.metrics_file("source", params.task))
     given = [p.from_file, str(Path(p.from_file).with_suffix(".json"))] if p.from_file else []
     # fails at once if another run writes them, or if they would replace anything else
     claim((out, store_kind("source")), metrics_path, inputs=given)
     env = envs.make_env(params.backend, params.task, p.robot, params.maniskill.lean_step)
-    print(f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)")
+    print(
+        f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)"
+        + source_inputs.describe(brought_in)
+    )
     demonstrator = functools.partial(envs.source_episodes, params.backend)
     draw = functools.partial(source_files.source_episodes, params.backend, demonstrator, env)
     demos = record_source_demos(env, spec.objects, draw, p, params.task, out, spec.arms)
@@ -90,7 +118,8 @@ def run(args: argparse.Namespace) -> None:
         write_metrics(
             tmp_metrics,
             metrics_identity("source", params.task, params.backend, p.robot, variant="D0")
-            | demos.metrics(),
+            | demos.metrics()
+            | brought_in,
         )
     print(
         f"source: {len(demos.steps)} demos -> {out} ({demos.demonstrator_failures} demonstrator "

@@ -4,6 +4,7 @@ of the real pipeline (source -> parse -> pose_noise -> generate) made once per s
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -83,6 +84,32 @@ def pipeline(tmp_path_factory) -> Path:
         "metrics/again.json",
         cwd=work,
     )
+    return work
+
+
+PYBULLET_STACK = "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"
+
+
+@pytest.fixture(scope="session")
+def pybullet_stack(tmp_path_factory) -> Path:
+    """A working directory where ``source`` and ``parse`` ran once with PYBULLET_STACK:
+    three PyBullet source demos of stack, parsed. Several modules start from these; each
+    takes its own copy (stages_copied_to) and leaves this one as it is."""
+    work = tmp_path_factory.mktemp("pybullet_stack")
+    (work / "params.yaml").write_text(PYBULLET_STACK)
+    cli("source", cwd=work)
+    cli("parse", cwd=work)
+    return work
+
+
+def stages_copied_to(work: Path, built: Path) -> Path:
+    """``work`` holding a copy of what the stages wrote in ``built`` (all but its params
+    file), as if they had run there; returns ``work``."""
+    for item in built.iterdir():
+        if item.is_dir():
+            shutil.copytree(item, work / item.name)
+        elif item.name != "params.yaml":
+            shutil.copy2(item, work / item.name)
     return work
 
 

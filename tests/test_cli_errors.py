@@ -319,3 +319,74 @@ def test_check_refuses_a_bad_params_file_or_a_file_it_names(tmp_path, source, ex
     os.mkfifo(tmp_path / "input/fifo.h5")  # a reader would block on it for ever
     msg = run_bad(tmp_path, "check", params=f"task: stack_cube\nsource: {source}\n")
     assert f"mimicgen-pipe check: error: params.yaml: {expected}" in msg
+
+
+PIPELINE_FOLDERS = ("", "quickstart", "suite", "transit", "transfer")
+
+
+def pipelines_copy(work, params_file, from_file):
+    """``work`` as a repository of the five pipelines (their real dvc.yaml and params
+    files), source.from_file set to ``from_file`` in ``params_file``, and a demo file in
+    each inputs folder and elsewhere."""
+    (work / ".dvc").mkdir()
+    for folder in PIPELINE_FOLDERS:
+        (work / folder).mkdir(exist_ok=True)
+        for name in ("dvc.yaml", "params.yaml"):
+            text = (REPO / folder / name).read_text()
+            if f"{folder}/{name}".lstrip("/") == params_file:
+                text = text.replace("from_file: null", f"from_file: {from_file}")
+            (work / folder / name).write_text(text)
+    for folder in ("inputs", "quickstart/inputs", "elsewhere"):
+        (work / folder).mkdir()
+        (work / folder / "demo.h5").write_bytes(b"demos")
+
+
+@pytest.mark.parametrize(
+    ("params_file", "from_file", "expected"),
+    [
+        (
+            "quickstart/params.yaml",
+            "elsewhere/demo.h5",
+            "expected a file in quickstart/inputs/, the folder that the source stage of "
+            "quickstart/dvc.yaml tracks (so that editing the file re-runs the stage)",
+        ),
+        (
+            "params.yaml",
+            "inputs/../elsewhere/demo.h5",
+            "expected a file in inputs/, the folder that the source stage of dvc.yaml tracks",
+        ),
+        (
+            "suite/params.yaml",
+            "quickstart/inputs/demo.h5",
+            "the pipeline of suite/dvc.yaml makes its own source demos; brought-in demos go "
+            "in inputs/ (dvc.yaml) or quickstart/inputs/ (quickstart/dvc.yaml), named by "
+            "source.from_file in that pipeline's params file",
+        ),
+        ("transit/params.yaml", "elsewhere/demo.h5", "transit/dvc.yaml makes its own source"),
+        ("transfer/params.yaml", "inputs/demo.h5", "transfer/dvc.yaml makes its own source"),
+    ],
+)
+def test_check_refuses_a_source_file_its_pipeline_does_not_track(
+    tmp_path, params_file, from_file, expected
+):
+    """A pipeline's source stage re-runs on an edit of the files in its inputs folder only
+    (a DVC dep); a file elsewhere would be edited without DVC seeing it."""
+    pipelines_copy(tmp_path, params_file, from_file)
+    res = cli("check", "--params", params_file, cwd=tmp_path, check=False)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.startswith(
+        f"mimicgen-pipe check: error: {params_file}: source.from_file: {from_file}: "
+    )
+    assert expected in res.stderr and res.stderr.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    ("params_file", "from_file"),
+    [("quickstart/params.yaml", "quickstart/inputs/demo.h5"), ("params.yaml", "inputs/demo.h5")],
+)
+def test_check_passes_a_source_file_in_its_pipelines_inputs_folder(
+    tmp_path, params_file, from_file
+):
+    pipelines_copy(tmp_path, params_file, from_file)
+    res = cli("check", "--params", params_file, cwd=tmp_path)
+    assert res.stdout.strip() == f"check: {params_file}: valid"

@@ -76,3 +76,17 @@ def test_the_command_reads_dvc_json(tmp_path):
     (tmp_path / "bad.json").write_text("{")
     res = cli("compare", "--json", "bad.json", cwd=tmp_path, check=False)
     assert res.returncode == 2 and "bad.json: not dvc exp show --json output" in res.stderr
+
+
+def test_a_numbers_interval_bounds_share_its_row():
+    """A summary's ``<key>_lo`` / ``<key>_hi`` (its 95% interval) are shown in ``<key>``'s
+    row, not as rows of their own; a run without them shows the number alone."""
+    shown = exp_show()
+    bounds = {"dgr_D0_lo": 72.2, "dgr_D0_hi": 97.5}
+    shown[1]["data"]["metrics"][QS.summary]["data"] |= bounds
+    shown[0]["data"]["metrics"][QS.summary]["data"] |= bounds
+    rows = compare.table(compare.runs_of(shown, QS))
+    by_name = {r[0]: r[1:] for r in rows[1:]}
+    assert "dgr_D0_lo" not in by_name and "dgr_D0_hi" not in by_name
+    assert by_name["dgr_D0"] == ["90 [72.2–97.5]", "95 (+5.0)", "90 [72.2–97.5]"]
+    assert max(len(line) for line in compare.render(rows).splitlines()) <= 120

@@ -27,7 +27,7 @@ import zarr
 
 from mimicgen_pipe.executors import Executor, map_blocks
 from mimicgen_pipe.resume import WorkDir, code_digest, work_dir_of
-from tests.conftest import REPO, cli
+from tests.conftest import PYBULLET_STACK, REPO, cli, stages_copied_to
 from tests.test_interrupts_and_outputs import alive, children, own_lines, start
 from tests.test_store_integrity import tree_digest
 
@@ -179,7 +179,7 @@ def test_closing_the_iterator_early_leaves_no_worker():
 
 # ---- real generation on every executor ----
 
-PARAMS = "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"
+PARAMS = PYBULLET_STACK
 ATTEMPTS = 48  # three blocks
 STORES = ("stack_D0.zarr", "stack_D0_failed.zarr")
 
@@ -193,14 +193,18 @@ def generate(work: Path, name: str, generate_params: str, **kw) -> subprocess.Co
 
 
 @pytest.fixture(scope="module")
-def work(tmp_path_factory) -> Path:
-    """Three parsed PyBullet source demos of stack and a reference run: local, 1 worker."""
-    work = tmp_path_factory.mktemp("executors")
+def work(tmp_path_factory, pybullet_stack) -> Path:
+    """Three parsed PyBullet source demos of stack."""
+    work = stages_copied_to(tmp_path_factory.mktemp("executors"), pybullet_stack)
     (work / "params.yaml").write_text(PARAMS)
-    cli("source", cwd=work)
-    cli("parse", cwd=work)
-    generate(work, "local1", "generate: {workers: 1, seed: 3}\n")
     return work
+
+
+@pytest.fixture(scope="module")
+def reference(work: Path) -> None:
+    """The run that same_stores compares with, in ``work``: local, 1 worker. Made only for
+    the tests that compare (all slow), not for every test that needs the parsed demos."""
+    generate(work, "local1", "generate: {workers: 1, seed: 3}\n")
 
 
 def same_stores(work: Path, name: str) -> None:
@@ -212,6 +216,7 @@ def same_stores(work: Path, name: str) -> None:
 
 @pytest.mark.sim
 @pytest.mark.slow
+@pytest.mark.usefixtures("reference")
 def test_local_two_workers_and_ray_write_the_same_stores(work):
     """Also with numpy's BLAS told to use one thread (as Ray workers are: OMP_NUM_THREADS=1)
     where the reference run had the machine's default, its core count."""
@@ -227,6 +232,7 @@ def test_local_two_workers_and_ray_write_the_same_stores(work):
 
 @pytest.mark.sim
 @pytest.mark.slow  # about 1 min (2 on a loaded machine); the default run keeps under 20 min
+@pytest.mark.usefixtures("reference")
 def test_a_killed_run_resumes_from_its_finished_blocks(work):
     """SIGKILL a real generate once a block is saved; the same command again reuses the
     saved blocks, runs only the rest, and writes the uninterrupted run's stores."""
@@ -278,6 +284,7 @@ def kill_after_first_block(work: Path, args: list[str], blocks: Path) -> None:
 
 @pytest.mark.sim
 @pytest.mark.slow
+@pytest.mark.usefixtures("reference")
 def test_planted_and_copied_blocks_are_discarded_never_unpickled(work, tmp_path):
     """(Its small form, block files read without unpickling, is in
     tests/test_resume_blocks.py.) In the work directory of a killed run (its key file right):
@@ -385,6 +392,7 @@ def ray_workers_of(raylet_pid: int) -> list[int]:
 
 @pytest.mark.sim
 @pytest.mark.slow
+@pytest.mark.usefixtures("reference")
 def test_a_ray_cluster_losing_a_worker_still_writes_the_same_stores(work, monkeypatch):
     """Head and second node (one CPU each) with token authentication on, as the driver
     requires; the driver connects through ray.address with the cluster's token. Once the

@@ -23,7 +23,11 @@ from mimicgen_pipe.taskspec import SubtaskSpec
 from tests.conftest import REPO, cli
 
 LENGTHS = (12, 7, 5)
-OBS = {"eef_pos": 3, "cubeA_pos": 3, "gripper_qpos": 2}
+OBS = {"eef_pos": 3, "eef_quat": 4, "cubeA_pos": 3, "cubeA_quat": 4, "gripper_qpos": 2}
+# the quaternions the simulator read (wxyz) of the poses they observe: obs/<key> = the pose's
+QUAT_POSES = {"eef_quat": "eef_pose", "cubeA_quat": "object_poses/cubeA"}
+RUN_ID = "0123456789abcdef"  # the synthetic store's run id and the params that made it
+GENERATE_PARAMS = {"generate": {"mode": "fixed_attempts", "seed": 0}, "pose_noise": {"level": 0}}
 # (height, width): both cameras one size, as LeRobot's Diffusion policy wants them
 CAMERAS = {"agentview": (84, 96), "eye_in_hand": (84, 96)}
 SUBTASK_STARTS = [t // 2 for t in LENGTHS]  # where grasp_cubeA's signal rises: place_on_cubeB
@@ -81,6 +85,7 @@ def synthetic_store(
             "subtask_signals/grasp_cubeA": np.arange(t) >= t // 2,
         }
         ep |= {f"obs/{k}": rng.normal(size=(t, d)).astype(np.float32) for k, d in OBS.items()}
+        ep |= {f"obs/{k}": ep[pose][:, 3:].astype(np.float32) for k, pose in QUAT_POSES.items()}
         for j, (c, (h, w)) in enumerate((cameras or {}).items()):
             ep[f"obs/{c}_image"] = _images(t, h, w, seed=2 * i + j)
         steps.append({k: v for k, v in ep.items() if k not in drop})
@@ -91,7 +96,8 @@ def synthetic_store(
         "source_demo": rng.integers(0, 10, (n, 2)),
     }
     attrs = {"task": task, "variant": "D1", "backend": backend, "robot": "panda",
-             "control_mode": "pd_ee_delta_pose", "control_freq": 20}  # fmt: skip
+             "control_mode": "pd_ee_delta_pose", "control_freq": 20, "run_id": RUN_ID,
+             "params": GENERATE_PARAMS}  # fmt: skip
     if cameras:
         from envs._cameras import calibration
 
@@ -109,9 +115,27 @@ def export_info(store):
 
 
 # MimicGen's (robosuite's) names of the synthetic store's observations in the robomimic export
-MIMICGEN_OBS = {"robot0_eef_pos": "eef_pos", "cubeA_pos": "cubeA_pos",
-                "robot0_gripper_qpos": "gripper_qpos", "object": "cubeA_pos"}  # fmt: skip
+# (their name -> the keys of ours it concatenates)
+MIMICGEN_OBS = {"robot0_eef_pos": ("eef_pos",), "robot0_eef_quat": ("eef_quat",),
+                "cubeA_pos": ("cubeA_pos",), "cubeA_quat": ("cubeA_quat",),
+                "robot0_gripper_qpos": ("gripper_qpos",),
+                "object": ("cubeA_pos", "cubeA_quat")}  # fmt: skip
 MIMICGEN_CAMERAS = {"agentview_image": "agentview", "robot0_eye_in_hand_image": "eye_in_hand"}
+
+
+XYZW = [1, 2, 3, 0]  # a wxyz quaternion's components in robosuite's order, xyzw
+
+
+def mimicgen_obs(ep: dict, t: int, key: str) -> np.ndarray:
+    """Step ``t``'s value of the robomimic export's ``obs/<key>`` from the episode's arrays
+    (quaternions reordered to robosuite's xyzw)."""
+    rows = [ep[f"obs/{ours}"][t] for ours in MIMICGEN_OBS[key]]
+    ours = MIMICGEN_OBS[key]
+    return np.concatenate(
+        [r[XYZW] if o in QUAT_POSES else r for o, r in zip(ours, rows, strict=True)]
+    )
+
+
 # the task's success after each step: episode 0 from 3 steps before its end, episode 1 at its
 # end only, episode 2 once on the way (step 2) and at its end
 STEP_SUCCESS = np.concatenate(
@@ -161,8 +185,8 @@ def test_robomimic_export_reads_back_with_robomimics_dataset_class(tmp_path):
                 assert sample["subtask_index"][0] == labels[start + t]
                 assert sample["rewards"][0] == float(STEP_SUCCESS[start + t])
                 assert sample["dones"][0] == float(dones[start + t])
-                for key, ours in MIMICGEN_OBS.items():
-                    np.testing.assert_array_equal(sample["obs"][key][0], ep[f"obs/{ours}"][t])
+                for key in MIMICGEN_OBS:
+                    np.testing.assert_array_equal(sample["obs"][key][0], mimicgen_obs(ep, t, key))
                 for key, value in images.items():
                     np.testing.assert_array_equal(sample["obs"][key][0], value[start + t])
                     nxt = value[start + min(t + 1, LENGTHS[i] - 1)]
@@ -186,7 +210,7 @@ def test_robomimic_export_reads_back_with_robomimics_dataset_class(tmp_path):
             "camera_names": ["agentview", "robot0_eye_in_hand"], "camera_heights": 84,
             "camera_widths": 96,
         }  # fmt: skip
-        assert json.loads(f["data"].attrs["object_keys"]) == ["cubeA_pos"]
+        assert json.loads(f["data"].attrs["object_keys"]) == ["cubeA_pos", "cubeA_quat"]
         calibration = json.loads(f["data"].attrs["camera_calibration"])
         theirs = store.attrs["camera_calibration"]
         assert calibration == {k.removesuffix("_image"): theirs[c]
@@ -208,7 +232,67 @@ def test_robomimic_export_reads_back_with_robomimics_dataset_class(tmp_path):
         assert f["data/demo_0"].attrs["num_samples"] == 12
 
 
+def test_robomimic_quaternions_are_robosuites_xyzw_and_the_file_says_what_it_holds(tmp_path):
+    """robot0_eef_quat (and every object quaternion, in obs/object too) is robosuite's xyzw:
+    the store's eef pose rotation converted by scipy (scalar last), and the simulator's wxyz
+    read reordered. data.attrs["mimicgen_pipe"] records what made the file and its
+    conventions (xyzw); robomimic's own env_meta reader finds robomimic's fields, of a
+    non-robosuite env, with a note saying robomimic cannot build it."""
+    import robomimic.utils.env_utils as env_utils
+    from scipy.spatial.transform import Rotation
+
+    store = synthetic_store(tmp_path / "g.zarr")
+    path, _ = exporters.write(store, "robomimic", tmp_path, export_info(store))
+    rotations = {k: store.poses(pose)[:, :3, :3] for k, pose in QUAT_POSES.items()}
+    with h5py.File(path, "r") as f:
+
+        def rows(name: str) -> np.ndarray:
+            return np.concatenate([f[f"data/demo_{i}/obs/{name}"][:] for i in range(3)])
+
+        written = {"eef_quat": rows("robot0_eef_quat"), "cubeA_quat": rows("cubeA_quat")}
+        obj = rows("object")
+        made = json.loads(f["data"].attrs["mimicgen_pipe"])
+        # as robomimic's FileUtils.get_env_metadata_from_dataset reads it
+        env_meta = json.loads(f["data"].attrs["env_args"])
+    np.testing.assert_array_equal(obj[:, 3:7], written["cubeA_quat"])  # after cubeA_pos
+    for key, quat in written.items():
+        np.testing.assert_array_equal(quat, store.data[f"obs/{key}"][:, XYZW])
+        scipy_xyzw = Rotation.from_matrix(rotations[key]).as_quat()
+        sign = np.sign(np.sum(scipy_xyzw * quat, axis=1, keepdims=True))  # q and -q agree
+        np.testing.assert_allclose(quat, sign * scipy_xyzw, atol=1e-6)
+        assert not np.allclose(quat, store.data[f"obs/{key}"], atol=1e-3)  # not wxyz
+    assert made == provenance(quaternion_order="xyzw")
+    assert not env_utils.is_robosuite_env(env_meta=env_meta)
+    assert (env_meta["env_name"], env_meta["type"]) == ("maniskill:stack_cube", 2)
+    assert env_meta["env_kwargs"] == {"backend": "maniskill", "task": "stack_cube",
+                                      "robot": "panda"}  # fmt: skip
+    assert "not a robosuite or gym env" in env_meta["note"]
+    assert "robomimic cannot build it" in env_meta["note"]
+
+
 LEARNERS = REPO / "tests/learners"  # scripts run in the learners' check venv
+# LeRobot's per-dimension names of the synthetic store's observation.state and
+# environment_state: each quaternion component named, in the order written (wxyz)
+STATE_NAMES = ["eef_pos.x", "eef_pos.y", "eef_pos.z", "eef_quat.qw", "eef_quat.qx",
+               "eef_quat.qy", "eef_quat.qz", "gripper_qpos.x", "gripper_qpos.y"]  # fmt: skip
+ENV_STATE_NAMES = ["cubeA_pos.x", "cubeA_pos.y", "cubeA_pos.z", "cubeA_quat.qw",
+                   "cubeA_quat.qx", "cubeA_quat.qy", "cubeA_quat.qz"]  # fmt: skip
+
+
+def provenance(quaternion_order="wxyz", control_mode="pd_ee_delta_pose") -> dict:
+    """What an export of the synthetic store records about it under "mimicgen_pipe"."""
+    import importlib.metadata
+
+    return {
+        "tool": "mimicgen-pipe", "tool_version": importlib.metadata.version("mimicgen-pipe"),
+        "kind": "generated", "run_id": RUN_ID, "task": "stack_cube", "variant": "D1",
+        "backend": "maniskill", "robot": "panda", "params": GENERATE_PARAMS,
+        "conventions": {
+            "quaternion_order": quaternion_order, "pose_frame": "world",
+            "units": {"length": "m", "angle": "rad", "time": "s"},
+            "control_mode": control_mode, "control_freq_hz": 20,
+        },
+    }  # fmt: skip
 
 
 def _lerobot_check(tmp_path, store, *flags: str) -> subprocess.CompletedProcess:
@@ -232,14 +316,14 @@ def _lerobot_check(tmp_path, store, *flags: str) -> subprocess.CompletedProcess:
     outcomes = {"next.reward": STEP_SUCCESS.astype(np.float32), "next.done": dones,
                 "next.success": STEP_SUCCESS}  # fmt: skip
     np.savez(tmp_path / "expected.npz", action=store.data["actions"],
-             state=np.concatenate([obs["eef_pos"], obs["gripper_qpos"]], axis=1),
-             env_state=obs["cubeA_pos"], lengths=lengths,
+             state=np.concatenate([obs["eef_pos"], obs["eef_quat"], obs["gripper_qpos"]], 1),
+             env_state=np.concatenate([obs["cubeA_pos"], obs["cubeA_quat"]], 1), lengths=lengths,
              episode_index=np.repeat(np.arange(len(LENGTHS)), lengths),
              subtask_index=exporters.subtask_labels(store, info.subtasks),
              subtasks=["grasp cubeA", "place on cubeB"], fps=20, task=info.task_description,
              action_names=list(exporters.ACTION_NAMES),
-             state_names=exporters.lerobot.state_names(store, ["eef_pos", "gripper_qpos"]),
-             env_state_names=exporters.lerobot.state_names(store, ["cubeA_pos"]),
+             state_names=STATE_NAMES, env_state_names=ENV_STATE_NAMES,
+             provenance=json.dumps(provenance()),
              video_keys=[k.removeprefix("images/") for k in videos], **videos,
              **calibration, **outcomes)  # fmt: skip
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
@@ -296,8 +380,20 @@ def test_lerobot_layout_is_lerobots_and_the_same_bytes_every_time(tmp_path):
     assert feature["info"]["video.codec"] == "av1" and feature["info"]["video.fps"] == 20
     assert meta["video_path"] == exporters.lerobot.VIDEO_PATH
     assert meta["features"]["subtask_index"] == {"dtype": "int64", "shape": [1], "names": None}
-    names = meta["features"]["observation.environment_state"]["names"]
-    assert names == ["cubeA_pos.x", "cubeA_pos.y", "cubeA_pos.z"]
+    assert meta["features"]["observation.environment_state"]["names"] == ENV_STATE_NAMES
+    assert meta["features"]["observation.state"]["names"] == STATE_NAMES
+    assert meta["mimicgen_pipe"] == provenance()
+    card = (path / "README.md").read_text()
+    assert card.startswith("---\ntask_categories:\n- robotics\n")
+    for words in (
+        f"run id `{RUN_ID}`",
+        info.task_description,
+        "Quaternions wxyz",
+        "agentview (84x96 px)",
+        "**Episodes:** 3",
+        "pd_ee_delta_pose at 20 Hz",
+    ):
+        assert words in card, words  # fmt: skip
     episodes = pq.read_table(path / exporters.lerobot.EPISODES_PATH).to_pydict()
     key = "videos/observation.images.eye_in_hand"
     ends = np.cumsum(LENGTHS) / 20
@@ -408,6 +504,11 @@ def test_maniskill_trajectory_reads_back_with_maniskills_dataset_class(tmp_path)
         for key in OBS:
             np.testing.assert_array_equal(item["obs"][key], store.data[f"obs/{key}"][row])
     assert ds.env_kwargs["reward_mode"] == "sparse"
+    assert ds.env_kwargs["obs_mode"] == "state_dict"  # a dict of low-dim state, as obs/ holds
+    assert ds.json_data["mimicgen_pipe"] == provenance()
+    joint = json.loads((tmp_path / "trajectory.pd_joint_pos.json").read_text())
+    assert joint["mimicgen_pipe"] == provenance(control_mode="pd_joint_pos")
+    assert joint["env_info"]["env_kwargs"]["obs_mode"] == "state_dict"
     with h5py.File(path, "r") as f:
         for i, t in enumerate(LENGTHS):
             obs = f[f"traj_{i}/obs/eef_pos"]

@@ -17,22 +17,19 @@ from mimicgen_pipe.executors import Executor
 from mimicgen_pipe.runner import attempt_seed
 from stages import generate
 from stages.generate_job import resolve
-from tests.conftest import cli
+from tests.conftest import PYBULLET_STACK, stages_copied_to
 from tests.test_imports import imported, project_modules
 
-PARAMS = "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"
-PARAMS += "generate: {workers: 1, seed: 3}\n"
+PARAMS = PYBULLET_STACK + "generate: {workers: 1, seed: 3}\n"
 
 
 @pytest.fixture(scope="module")
-def work(tmp_path_factory) -> Path:
+def work(tmp_path_factory, pybullet_stack) -> Path:
     """Three PyBullet source demos of stack, parsed, and a params file that asks for pose
     noise the parsed store does not carry."""
-    work = tmp_path_factory.mktemp("generate_job")
+    work = stages_copied_to(tmp_path_factory.mktemp("generate_job"), pybullet_stack)
     (work / "params.yaml").write_text(PARAMS)
     (work / "noisy.yaml").write_text(PARAMS + "pose_noise: {level: L1}\n")
-    cli("source", cwd=work)
-    cli("parse", cwd=work)
     return work
 
 

@@ -1,7 +1,8 @@
 """How the project's packages depend on each other, read from their source (nothing is
 imported): the library (mimicgen_pipe) never imports the simulator back ends (envs), no
-project modules import each other in a cycle, and the source stage runs without the
-exporters.
+project modules import each other in a cycle, the source stage runs without the exporters,
+and neither the product (mimicgen_pipe, envs, stages, scripts) nor its tests import or run
+the lab's investigation scripts (lab/).
 
 The import graph: an edge from a module to each project module it imports anywhere in its
 body, imports inside functions included; ``from a import b`` counts a, and a.b where a.b is
@@ -13,6 +14,7 @@ runs: its parent packages, and every module of a registry package it loads from
 from __future__ import annotations
 
 import ast
+import re
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
@@ -227,3 +229,92 @@ def test_the_graph_sees_imports_inside_functions_and_skips_type_checking(tmp_pat
         "mimicgen_pipe.choices.one",
         "mimicgen_pipe.choices",
     }
+
+
+PRODUCT = ("mimicgen_pipe", "envs", "stages", "scripts")
+LAB_MODULE = re.compile(r"lab(\.\w+)+")  # "lab.scripts.x": a module of the lab by name
+
+
+def _docstrings(tree: ast.AST) -> set[int]:
+    """The ids of the docstrings of ``tree``'s module, classes and functions (prose, which
+    may name a lab script)."""
+    kinds = ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef
+    return {
+        id(node.body[0].value)
+        for node in ast.walk(tree)
+        if isinstance(node, kinds) and node.body and isinstance(node.body[0], ast.Expr)
+    }
+
+
+def path_parts(node: ast.AST) -> list[str] | None:
+    """The components of the path ``node`` spells: a string (``"lab/scripts/x.py"``) or a
+    chain of ``/`` (``REPO / "lab" / "x.py"``), whose other parts count as "?"; None for
+    anything else."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        return node.value.split("/")
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Div):
+        return (path_parts(node.left) or ["?"]) + (path_parts(node.right) or ["?"])
+    return None
+
+
+def names_lab_code(parts: list[str]) -> bool:
+    """Whether a path names the lab's code: "lab", then "scripts" or a .py file (the lab's
+    README and notes are documents, which the docs' link check reads)."""
+    after = parts[parts.index("lab") + 1 :] if "lab" in parts else []
+    return any(p == "scripts" or p.endswith(".py") for p in after)
+
+
+def names_the_lab(node: ast.AST, prose: set[int]) -> bool:
+    """Whether ``node`` imports a module of the lab, or names one by its dotted name or a
+    path to the lab's code (to load or run it); ``prose``: the ids of docstrings, skipped."""
+    if isinstance(node, ast.Import):
+        return any(a.name.split(".")[0] == "lab" for a in node.names)
+    if isinstance(node, ast.ImportFrom):
+        return not node.level and (node.module or "").split(".")[0] == "lab"
+    if id(node) in prose:
+        return False
+    if isinstance(node, ast.Constant) and LAB_MODULE.fullmatch(str(node.value)):
+        return True
+    parts = path_parts(node)
+    return parts is not None and names_lab_code(parts)
+
+
+def lab_uses(path: Path) -> list[int]:
+    """The lines of ``path`` that import or name the lab's code (:func:`names_the_lab`)."""
+    tree = ast.parse(path.read_text(), str(path))
+    prose = _docstrings(tree)
+    return sorted({getattr(n, "lineno", 0) for n in ast.walk(tree) if names_the_lab(n, prose)})
+
+
+def checked_by_the_lab_rule(root: Path = REPO) -> list[Path]:
+    """Every Python file of the product's packages and scripts, and of its tests."""
+    return [p for d in (*PRODUCT, "tests") for p in sorted((root / d).rglob("*.py"))]
+
+
+def test_neither_the_product_nor_its_tests_import_or_run_the_lab():
+    """The lab (investigation scripts) builds on the product, never the other way: no
+    product module depends on a lab script, and no product test covers one."""
+    files = {p.relative_to(REPO).as_posix(): p for p in checked_by_the_lab_rule()}
+    assert {"mimicgen_pipe/evaluation.py", "scripts/dvc_deps.py", "tests/conftest.py"} <= set(files)
+    uses = {name: lab_uses(p) for name, p in files.items()}
+    assert {name: lines for name, lines in uses.items() if lines} == {}
+
+
+def test_the_lab_rule_finds_imports_and_paths_of_lab_code(tmp_path):
+    """The reading itself: imports of the lab, its modules by name, and paths to its scripts
+    are found; a path to the lab's README, a docstring and other names of "lab" are not."""
+    source = tmp_path / "m.py"
+    source.write_text(
+        '"""Reads lab/scripts/x.py."""\n'  # 1: a docstring
+        "import lab.scripts.x\n"  # 2
+        "from lab.scripts import x\n"  # 3
+        'importlib.import_module("lab.scripts.x")\n'  # 4
+        'SCRIPT = REPO / "lab" / "scripts" / "x.py"\n'  # 5
+        'runpy.run_path("lab/scripts/x.py")\n'  # 6
+        'sys.path.insert(0, str(ROOT / "lab/scripts"))\n'  # 7
+        'PAGES = [REPO / "lab" / "README.md", "lab", "a lab.", "labels.py"]\n'  # 8
+        "import labels\n"  # 9
+        "def f():\n"  # 10
+        '    """Like lab/scripts/x.py."""\n'  # 11
+    )
+    assert lab_uses(source) == [2, 3, 4, 5, 6, 7]

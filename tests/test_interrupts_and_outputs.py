@@ -21,20 +21,18 @@ from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import check_same_run, claim, lock_file, release, run_id
 from mimicgen_pipe.params import Params, data_params
-from tests.conftest import REPO, cli
+from tests.conftest import PYBULLET_STACK, REPO, cli, stages_copied_to
 
-PARAMS = "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"
+PARAMS = PYBULLET_STACK
 GENERATE = ["generate", "--variant", "D0", "--parsed", "data/parsed/stack.zarr"]
 
 
 @pytest.fixture(scope="module")
-def work(tmp_path_factory) -> Path:
+def work(tmp_path_factory, pybullet_stack) -> Path:
     """Three PyBullet source demos of stack, parsed."""
-    work = tmp_path_factory.mktemp("interrupts")
+    work = stages_copied_to(tmp_path_factory.mktemp("interrupts"), pybullet_stack)
     (work / "params.yaml").write_text(PARAMS + "generate: {workers: 1, seed: 3}\n")
     (work / "two.yaml").write_text(PARAMS + "generate: {workers: 2, seed: 3}\n")
-    cli("source", cwd=work)
-    cli("parse", cwd=work)
     return work
 
 

@@ -175,6 +175,31 @@ def test_robomimic_trains_bc_rnn_on_our_export(exports, tmp_path, config, store,
     assert any(k.startswith("policy.nets.rnn") for k in report["model_keys"]), report
 
 
+@pytest.mark.slow
+def test_the_robomimic_trainer_fails_a_run_that_saves_no_checkpoint(exports, tmp_path):
+    """mimicgen_pipe/external/_robomimic_train.py (the README's robomimic command) exits 1
+    after a run whose epochs miss every save (robomimic's train.py exits 0), and saves the
+    last epoch of a run it shortens itself (--num_epochs)."""
+    from mimicgen_pipe.external import _robomimic_train
+
+    def run(out: Path, *extra: str) -> subprocess.CompletedProcess:
+        """One epoch of one step, a checkpoint every 2 epochs, into ``out``."""
+        out.parent.mkdir()
+        path = short_robomimic_config("bc_rnn_low_dim", out, 1, 1)
+        config = json.loads(path.read_text())
+        config["experiment"]["save"]["every_n_epochs"] = 2
+        path.write_text(json.dumps(config))
+        return learner("python", _robomimic_train.__file__, "--config", str(path), "--dataset",
+                       str(exports["generated"] / "demos.hdf5"), *extra, cwd=tmp_path)  # fmt: skip
+
+    res = run(tmp_path / "unsaved" / "runs")
+    assert res.returncode == 1, res.stdout[-3000:] + res.stderr[-3000:]
+    assert "robomimic saved no checkpoint" in res.stdout + res.stderr
+    res = run(tmp_path / "saved" / "runs", "--num_epochs", "1")
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    assert list((tmp_path / "saved/runs").glob("*/*/models/model_epoch_1.pth"))
+
+
 def test_train_robomimic_normalizes_a_sequence_dataset_as_robomimic_does(exports, tmp_path):
     """train_robomimic (robomimic 0.3.0's own training at our profile's size, here 2x8 LSTM,
     3 epochs of 4 steps, a checkpoint every epoch) with --obs normalized: robomimic 0.3.0's

@@ -23,10 +23,10 @@ from mimicgen_pipe.layout import failed_store
 from mimicgen_pipe.metrics import write_metrics
 from mimicgen_pipe.outputs import claim, release, store_kind
 from mimicgen_pipe.store import write_store
-from tests.conftest import cli
+from tests.conftest import PYBULLET_STACK, cli, stages_copied_to
 from tests.test_interrupts_and_outputs import own_lines
 
-PARAMS = "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"
+PARAMS = PYBULLET_STACK
 PARAMS += "generate: {workers: 1, seed: 3}\n"
 GENERATE = ["generate", "--variant", "D0", "--parsed", "data/parsed/stack.zarr"]
 
@@ -242,12 +242,10 @@ def test_a_read_only_output_directory_is_one_error(small_disk):
 
 
 @pytest.fixture(scope="module")
-def work(tmp_path_factory) -> Path:
+def work(tmp_path_factory, pybullet_stack) -> Path:
     """Three PyBullet source demos of stack, parsed, and a small generated set."""
-    work = tmp_path_factory.mktemp("safety")
+    work = stages_copied_to(tmp_path_factory.mktemp("safety"), pybullet_stack)
     (work / "params.yaml").write_text(PARAMS)
-    cli("source", cwd=work)
-    cli("parse", cwd=work)
     return work
 
 

@@ -5,11 +5,15 @@ read it and their downstream."""
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 from pathlib import Path
 
 import networkx as nx
 import pytest
 import yaml
+
+from mimicgen_pipe import source_inputs
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -130,3 +134,107 @@ def test_each_pipeline_reruns_only_its_own_files_readers(graph):
 )  # fmt: skip
 def test_a_key_that_changes_no_number_re_runs_nothing(graph, key):
     assert rerun(graph, key) == set()
+
+
+def test_only_the_quickstart_and_the_default_source_stages_track_an_inputs_folder():
+    """source.from_file is allowed where the source stage tracks <pipeline>/inputs/."""
+    found = {
+        f.relative_to(REPO).as_posix(): source_inputs.inputs_folder(f)
+        for f in (REPO / "dvc.yaml", *REPO.glob("*/dvc.yaml"))
+    }
+    assert {f: d.relative_to(REPO).as_posix() for f, d in found.items() if d} == {
+        "dvc.yaml": "inputs",
+        "quickstart/dvc.yaml": "quickstart/inputs",
+    }
+    assert all((d / "README.md").is_file() for d in found.values() if d)
+
+
+PIPELINE_LINES = 250  # a pipeline definition reads on a screen or two
+PIPELINES = [REPO / "dvc.yaml", *sorted(REPO.glob("*/dvc.yaml"))]
+
+
+def yaml_shortcuts(text: str) -> list[str]:
+    """The anchors, aliases and merge keys of a YAML text, each as 'line N: what'."""
+    found = []
+    for token in yaml.scan(text):
+        if isinstance(token, (yaml.AnchorToken, yaml.AliasToken)):
+            kind = "anchor &" if isinstance(token, yaml.AnchorToken) else "alias *"
+            found.append(f"line {token.start_mark.line + 1}: {kind}{token.value}")
+        elif isinstance(token, yaml.ScalarToken) and token.plain and token.value == "<<":
+            found.append(f"line {token.start_mark.line + 1}: merge key <<")
+    return found
+
+
+def test_yaml_shortcuts_finds_anchors_aliases_and_merge_keys_but_not_comments():
+    text = "a: &k [x]\nb: *k\nc:\n  <<: {d: 1}\n  e: 2  # <<: *k\n"
+    assert yaml_shortcuts(text) == ["line 1: anchor &k", "line 2: alias *k", "line 4: merge key <<"]
+
+
+@pytest.mark.parametrize("path", PIPELINES, ids=lambda p: p.relative_to(REPO).as_posix())
+def test_a_pipeline_has_no_yaml_anchors_aliases_or_merge_keys(path):
+    """A merge key silently drops the merged keys a stage also sets (its deps, say), and an
+    alias hides what a stage reads: every stage is written out in full."""
+    assert yaml_shortcuts(path.read_text()) == [], path.relative_to(REPO).as_posix()
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        pytest.param(p, marks=pytest.mark.xfail(strict=True, reason=(
+            "24 stage groups whose names key suite/dvc.lock; DVC templating cannot share a "
+            "stage body between groups, so written out in full they need more lines")))
+        if p == REPO / "suite/dvc.yaml" else p
+        for p in PIPELINES
+    ],
+    ids=lambda p: p.relative_to(REPO).as_posix(),
+)  # fmt: skip
+def test_a_pipeline_fits_its_line_limit(path):
+    lines = len(path.read_text().splitlines())
+    assert lines <= PIPELINE_LINES, f"{path.relative_to(REPO)}: {lines} lines"
+
+
+def stand_in(stage: dict) -> dict:
+    """``stage`` (a dvc.yaml stage) with a command that writes its outs and metrics instead
+    of running the stage: its deps, params and outputs as they are."""
+    metrics = [next(iter(m)) for m in stage["metrics"]]
+    cmd = [f"mkdir -p {o} && echo x > {o}/x" for o in stage["outs"]]
+    cmd += [f"mkdir -p $(dirname {m}) && echo 1 > {m}" for m in metrics]
+    return stage | {"cmd": " && ".join(cmd)}
+
+
+def test_editing_a_brought_in_demo_file_makes_dvc_rerun_its_source_stage(tmp_path, monkeypatch):
+    """On DVC itself, with the quickstart's and the default pipeline's real source stages
+    (a stand-in command): a file of a pipeline's inputs folder, named by source.from_file,
+    edited in place (a demo dropped) makes `dvc status` list that pipeline's source stage."""
+    work = tmp_path / "repo"
+    for folder in ("", "quickstart"):
+        real = yaml.safe_load((REPO / folder / "dvc.yaml").read_text())
+        (work / folder / "code_deps").mkdir(parents=True)
+        (work / folder / "code_deps/source.txt").write_text("manifest\n")
+        shutil.copytree(REPO / folder / "inputs", work / folder / "inputs")
+        (work / folder / "inputs/demo.h5").write_bytes(b"demo 1, demo 2")
+        params = (REPO / folder / "params.yaml").read_text()
+        from_file = f"{folder}/inputs/demo.h5".lstrip("/")
+        (work / folder / "params.yaml").write_text(
+            params.replace("from_file: null", f"from_file: {from_file}")
+        )
+        pipeline = {k: v for k, v in real.items() if k != "stages"}
+        pipeline["stages"] = {"source": stand_in(real["stages"]["source"])}
+        (work / folder / "dvc.yaml").write_text(yaml.safe_dump(pipeline))
+    from dvc.repo import Repo
+
+    monkeypatch.chdir(work)  # DVC reads the targets from the working directory
+    monkeypatch.setenv("DVC_SITE_CACHE_DIR", str(tmp_path / "site_cache"))
+    subprocess.run(["git", "init", "-q"], check=True)
+    Repo.init(str(work)).close()
+    with Repo(str(work)) as repo:
+        repo.reproduce("dvc.yaml")
+        repo.reproduce("quickstart/dvc.yaml")
+    with Repo(str(work)) as repo:
+        assert repo.status() == {}
+    (work / "quickstart/inputs/demo.h5").write_bytes(b"demo 1")
+    with Repo(str(work)) as repo:
+        assert list(repo.status()) == ["quickstart/dvc.yaml:source"]
+    (work / "inputs/demo.h5").write_bytes(b"demo 2")
+    with Repo(str(work)) as repo:
+        assert sorted(repo.status()) == ["quickstart/dvc.yaml:source", "source"]

@@ -13,7 +13,7 @@ import pytest
 from mimicgen_pipe import poses
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.kinematics import forward_kinematics, inverse_kinematics
-from tests.conftest import cli, replay_first_episodes
+from tests.conftest import PYBULLET_STACK, cli, replay_first_episodes, stages_copied_to
 
 pytest.importorskip("pybullet")
 
@@ -149,15 +149,10 @@ def test_demonstrator_succeeds_and_is_deterministic(task):
 
 
 @pytest.fixture(scope="module")
-def transfer_run(tmp_path_factory) -> Path:
+def transfer_run(tmp_path_factory, pybullet_stack) -> Path:
     """Source demos on the Panda (PyBullet stack), parsed, then generated with the iiwa."""
-    work = tmp_path_factory.mktemp("transfer")
-    (work / "params.yaml").write_text(
-        "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"
-        "generate: {workers: 1, seed: 3}\n"
-    )
-    cli("source", cwd=work)
-    cli("parse", cwd=work)
+    work = stages_copied_to(tmp_path_factory.mktemp("transfer"), pybullet_stack)
+    (work / "params.yaml").write_text(PYBULLET_STACK + "generate: {workers: 1, seed: 3}\n")
     for robot in ("iiwa", "panda"):
         cli(
             "generate", "--robot", robot, "--variant", "D0", "--attempts", "8",

@@ -1,23 +1,35 @@
 """The README's five-minute command, run as a newcomer runs it: `dvc repro
-quickstart/dvc.yaml` in a copy of the repository, giving a generated dataset, its DGR, a
-robomimic export and a report, with the numbers committed in quickstart/metrics/."""
+quickstart/dvc.yaml` in a copy of the repository, giving a generated dataset, its DGR, its
+robomimic, LeRobot and ManiSkill exports and a report, with the numbers committed in
+quickstart/metrics/; then the README's robomimic and LeRobot commands, as written, train on
+those exports offline."""
 
 from __future__ import annotations
 
 import json
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 from tests.test_cross_cpu import locked_outs, made_the_locks
+from tests.test_docs import FENCE
 from tests.test_output_safety import tree_digest
 
 REPO = Path(__file__).resolve().parents[1]
+LEARNERS = REPO / ".venv-learners"
+needs_learners = pytest.mark.skipif(
+    not (LEARNERS / "bin/python").exists(),
+    reason="the learners' venv .venv-learners is missing (made by scripts/setup.sh)",
+)
+# the README's trainer commands made short for a test, by their own run-length flags
+SHORT = {"robomimic": "--num_epochs 1 --epoch_every_n_steps 2", "lerobot": "--steps=1"}
 
 
 def repository_copy(dest: Path) -> Path:
@@ -37,16 +49,24 @@ def repository_copy(dest: Path) -> Path:
     return dest
 
 
-@pytest.mark.sim
-@pytest.mark.slow
-def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(tmp_path):
-    work = repository_copy(tmp_path)
+@pytest.fixture(scope="module")
+def quickstart(tmp_path_factory) -> tuple[Path, dict[str, str]]:
+    """`dvc repro quickstart/dvc.yaml` run in a copy of the repository: the copy and the
+    environment it ran in."""
+    work = repository_copy(tmp_path_factory.mktemp("quickstart"))
     env = dict(os.environ, PYTHONPATH=str(work), PYTHONWARNINGS="ignore")
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env['PATH']}"
     res = subprocess.run(
         ["dvc", "repro", "quickstart/dvc.yaml"], cwd=work, env=env, capture_output=True, text=True
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    return work, env
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(quickstart, tmp_path):
+    work, env = quickstart
     q = work / "quickstart"
     ran = json.loads((q / "metrics/generate_stack_cube_D0.json").read_text())
     committed = json.loads((REPO / "quickstart/metrics/generate_stack_cube_D0.json").read_text())
@@ -76,11 +96,21 @@ def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(tmp_path):
     summary = json.loads((q / "report/summary.json").read_text())
     assert summary["dgr_D0"] == round(ran["dgr"], 1)
     assert "DGR" in (q / "report/report.html").read_text()
+    # one kept and one failed episode, shown in the report
+    report = (q / "report/report.md").read_text()
+    for name in ("kept_0", "failed_0"):
+        assert (q / f"media/stack_cube_D0/{name}.mp4").stat().st_size > 0
+        assert f"../media/stack_cube_D0/{name}.gif" in report
 
     import h5py
 
-    with h5py.File(q / "data/export/stack_cube_D0/demos.hdf5") as f:
+    export = q / "data/export/stack_cube_D0"
+    with h5py.File(export / "demos.hdf5") as f:
         assert len(f["data"]) == ran["successes"] == 20
+    info = json.loads((export / "lerobot/meta/info.json").read_text())
+    assert info["total_episodes"] == 20
+    with h5py.File(export / "trajectory.h5") as f:
+        assert len(f) == 20
     check_a_typo_loses_nothing(work, env)
     check_experiments_and_compare(work, env)
 
@@ -165,3 +195,128 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     assert noise[head.index("noise02")] == "0.02" and noise[0] == "0.05"
     assert rows["coverage.bins"][head.index("bins4")] == "4"
     assert "dgr_D0" in rows and "coverage_D0" in rows
+
+
+def quickstart_export() -> str:
+    """The quickstart's export folder (of its first variant), as its dvc.yaml names it."""
+    stage = yaml.safe_load((REPO / "quickstart/dvc.yaml").read_text())["stages"]["export"]
+    params = yaml.safe_load((REPO / "quickstart/params.yaml").read_text())
+    out = stage["outs"][0].replace("${task}", params["task"])
+    return out.replace("${item.variant}", params["generate"]["variants"][0])
+
+
+def readme_trainer_commands(readme: Path = REPO / "README.md") -> dict[str, str]:
+    """README.md's commands of the learners' venv, by framework (robomimic, lerobot): each
+    line of its code blocks that runs ``.venv-learners/bin/``, continued lines joined."""
+    found: dict[str, str] = {}
+    for block in FENCE.finditer(readme.read_text()):
+        for line in block.group(0).replace("\\\n", " ").splitlines()[1:-1]:
+            if ".venv-learners/bin/" in line:
+                name = "lerobot" if "lerobot" in line else "robomimic"
+                assert name not in found, f"README.md: a second {name} command: {line}"
+                found[name] = " ".join(line.split())
+    return found
+
+
+def argument(command: str, flag: str) -> str:
+    """The value of ``flag`` in a shell command (``--flag value`` or ``--flag=value``)."""
+    words = shlex.split(command)
+    for i, word in enumerate(words):
+        if word == flag:
+            return words[i + 1]
+        if word.startswith(flag + "="):
+            return word.partition("=")[2]
+    raise AssertionError(f"{flag} not in {command}")
+
+
+def run_readme_command(
+    name: str, cwd: Path, home: Path, extra: str = ""
+) -> subprocess.CompletedProcess:
+    """README.md's ``name`` command run by bash in ``cwd``, as written plus ``extra``, with
+    ``home`` as $HOME and none of the Hugging Face variables of this process."""
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("PYTHONPATH", "VIRTUAL_ENV", "XDG_CACHE_HOME") and not k.startswith("HF_")
+    }
+    env |= {"HOME": str(home), "MPLCONFIGDIR": str(home / "mpl")}  # fmt: skip
+    return subprocess.run(
+        ["bash", "-c", f"{readme_trainer_commands()[name]} {extra}"],
+        cwd=cwd, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=1800,
+    )  # fmt: skip
+
+
+def test_the_readme_trainer_commands_name_the_quickstarts_exports():
+    """README.md's robomimic and LeRobot commands read what the quickstart writes (its
+    export folder as quickstart/dvc.yaml names it, in formats quickstart/params.yaml asks
+    for), LeRobot's offline and with act.json's settings."""
+    commands = readme_trainer_commands()
+    assert set(commands) == {"robomimic", "lerobot"}, commands
+    export = quickstart_export()
+    formats = yaml.safe_load((REPO / "quickstart/params.yaml").read_text())["export"]["formats"]
+    assert {"robomimic", "lerobot", "maniskill"} <= set(formats)
+    robomimic = commands["robomimic"]
+    assert "_robomimic_train.py" in robomimic  # robomimic's train.py exits 0 on a failure
+    assert argument(robomimic, "--dataset") == f"{export}/demos.hdf5"
+    assert (REPO / argument(robomimic, "--config")).is_file()
+    lerobot = commands["lerobot"]
+    assert lerobot.startswith("HF_HUB_OFFLINE=1 "), lerobot
+    config = json.loads((REPO / argument(lerobot, "--config_path")).read_text())
+    assert config["dataset"]["root"] == f"{export}/lerobot"
+    act = json.loads((REPO / "configs/lerobot/act.json").read_text())
+    assert {k: v for k, v in config.items() if k not in ("dataset", "job_name")} == {
+        k: v for k, v in act.items() if k not in ("dataset", "job_name")
+    }
+
+
+@needs_learners
+def test_the_readme_robomimic_command_fails_without_its_dataset(tmp_path):
+    """README.md's robomimic command where the quickstart has not run: one line naming the
+    dataset, a non-zero exit, and no run folder made."""
+    for name in (".venv-learners", "configs", "mimicgen_pipe"):
+        (tmp_path / name).symlink_to(REPO / name)
+    home = tmp_path / "home"
+    res = run_readme_command("robomimic", tmp_path, home)
+    assert res.returncode != 0, res.stdout[-3000:]
+    assert f"{quickstart_export()}/demos.hdf5: no such file" in res.stderr, res.stderr[-3000:]
+    assert not (home / "robomimic_trained_models").exists()
+
+
+@needs_learners
+@pytest.mark.slow
+def test_the_readme_lerobot_command_fails_without_its_dataset(tmp_path):
+    """README.md's LeRobot command where the quickstart has not run: a non-zero exit,
+    offline, and no checkpoint."""
+    for name in (".venv-learners", "configs"):
+        (tmp_path / name).symlink_to(REPO / name)
+    res = run_readme_command("lerobot", tmp_path, tmp_path / "home", SHORT["lerobot"])
+    assert res.returncode != 0, res.stdout[-3000:] + res.stderr[-3000:]
+    assert not list(tmp_path.glob("outputs/train/*/*/checkpoints"))
+
+
+def check_the_readme_trainers(work: Path, home: Path) -> None:
+    """README.md's robomimic and LeRobot commands, as written but for a shorter run, in
+    ``work`` after the quickstart: each exits 0 and writes a checkpoint."""
+    (work / ".venv-learners").symlink_to(LEARNERS)
+    res = run_readme_command("robomimic", work, home, SHORT["robomimic"])
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    assert list(home.glob("robomimic_trained_models/*/*/models/model_epoch_1.pth")), res.stdout[
+        -3000:
+    ]
+    res = run_readme_command("lerobot", work, home, SHORT["lerobot"])
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    saved = "outputs/train/*/*_act_stack_cube_D0/checkpoints/*/pretrained_model/model.safetensors"
+    assert list(work.glob(saved)), res.stderr[-3000:]
+
+
+@needs_learners
+@pytest.mark.sim
+@pytest.mark.slow
+def test_the_readme_trainers_train_on_the_quickstarts_exports(quickstart, tmp_path):
+    """README.md's trainer commands on the quickstart's exports. After the pipeline's test
+    in this file: its experiments commit the workspace, which must not hold their outputs."""
+    work, _ = quickstart
+    try:
+        check_the_readme_trainers(work, tmp_path / "home")
+    finally:
+        shutil.rmtree(work / "outputs", ignore_errors=True)  # hundreds of MB of ACT

@@ -26,6 +26,7 @@ from mimicgen_pipe.report import (
 from mimicgen_pipe.report.ablations import suite_ablation_blocks
 from mimicgen_pipe.report.blocks import Heading, Image, Table, Text, render_html, render_markdown
 from mimicgen_pipe.report.curves import draw_curves, read_curves
+from mimicgen_pipe.report.fmt import fmt_ci, fmt_sr, sr_counts, wilson_interval
 from mimicgen_pipe.report.inputs import MetricsSet, Run, read_metrics_folder
 from mimicgen_pipe.report.paper import PaperResults, load_paper_results
 from mimicgen_pipe.report.scaling import draw_dataset_size, scaling_blocks
@@ -178,15 +179,10 @@ def test_params_with_task_stack_read_no_stack_cube_metrics(tmp_path):
     cli("report", "--metrics", str(REPO / "metrics"), "--plots", str(REPO / "plots"),
         "--paper", str(PAPER), "--out", "report", cwd=tmp_path)  # fmt: skip
     md = (tmp_path / "report/report.md").read_text()
-    policies = md.split("## Policy success rate")[1].split("## ")[0]
-    assert "cube" not in policies
-    # the paper's three P.1 rows for Stack, all missing: no run of stack was evaluated
-    assert len(rows_of(policies, "| source demos", "| generated ")) == 3
-    assert policies.count("missing") == 9
+    # no run of stack was trained, evaluated or ablated: stack_cube's are not taken for it
+    assert "## Policy success rate" not in md and "## Ablations" not in md
     dgr = md.split("## Data generation rate")[1].split("## ")[0]
     assert rows_of(dgr, "| D0 | missing |", "| D1 | missing |") == rows_of(dgr, "| D")
-    ablations = md.split("## Ablations")[1].split("## ")[0]
-    assert "cube" not in ablations and "No saved ablation runs" in ablations
     assert "Robot transfer" not in md  # robot transfer's own pipeline reports it
 
 
@@ -201,15 +197,20 @@ def test_the_transfer_report_shows_each_arms_committed_dgr(tmp_path):
     cells = []
     for robot in ("panda", "iiwa", "xarm6"):
         m = json.loads((REPO / f"transfer/metrics/generate_stack_D0_{robot}.json").read_text())
-        cells.append(f"{m['dgr']:.1f} ({m['ik_failures']}/{m['attempts']} IK)")
+        ci = fmt_ci((m["successes"], m["attempts"]))
+        cells.append(f"{m['dgr']:.1f}{ci} ({m['ik_failures']}/{m['attempts']} IK)")
         assert summary[f"dgr_stack_D0_{robot}"] == round(m["dgr"], 1)
+        assert f" [{summary[f'dgr_stack_D0_{robot}_lo']}–" in ci
     assert f"| stack (D0) | {' | '.join(cells)} |" in md
     # PyBullet Stack Three's D0 policies (transfer.policy_tasks), beside P.1
     ev = json.loads((REPO / "transfer/metrics/evaluate_stack_three_D0_on_D0.json").read_text())
-    sr = f"{ev['success_rate_max']:.1f} ± {ev['success_rate_max_std']:.1f} (3 seeds)"
+    pooled = (round(ev["success_rate_max"] * 3 * ev["episodes"] / 100), 3 * ev["episodes"])
+    sr = f"{ev['success_rate_max']:.1f} ± {ev['success_rate_max_std']:.1f}{fmt_ci(pooled)}"
+    sr += " (3 seeds)"
     assert rows_of(md, "| `stack_three` | Stack Three |")[0].split(" | ")[5] == sr
     assert summary["sr_stack_three_D0_on_D0"] == round(ev["success_rate_max"], 1)
-    assert "| stack_cube (D1) |" in md and len(summary) == 3 * 2 * 3 + 2 * 2 + 1
+    # each DGR and SR with its interval's bounds
+    assert "| stack_cube (D1) |" in md and len(summary) == 3 * (3 * 2 * 3 + 2 * 2 + 1)
 
 
 def test_a_generate_only_experiment_marks_what_is_of_the_earlier_run():
@@ -225,7 +226,7 @@ def test_a_generate_only_experiment_marks_what_is_of_the_earlier_run():
         m("evaluate", "stack_cube", "D0", data="source", data_run_id=None, success_rate_max=0.0),
     )
     md = report_md(Params(), *files)
-    assert rows_of(md, "| D0 | 1250 | 1000 | 80.0 |")  # the new generate run
+    assert rows_of(md, "| D0 | 1250 | 1000 | 80.0 [77.7–82.1] |")  # the new generate run
     assert rows_of(md, "| generated D0 † | D0 | 86.0 |")
     assert rows_of(md, "| generated D1 | D1 | 90.0 |") and rows_of(md, "| source demos | D0 |")
     assert rows_of(md, "| D0 † | missing | missing / missing | 59.1 |")
@@ -237,25 +238,90 @@ def test_a_generate_only_experiment_marks_what_is_of_the_earlier_run():
 # --- the default pipeline's report --------------------------------------------------------
 
 
+def test_wilson_interval_is_the_hand_computed_one():
+    """95% Wilson score intervals [%] worked by hand from (p + z²/2n ± z·sqrt(p(1-p)/n +
+    z²/4n²)) / (1 + z²/n), z = 1.96: e.g. 20 of 22: centre 0.8483, half 0.1264."""
+    cases = {(20, 22): (72.18, 97.47), (5, 10): (23.66, 76.34), (0, 10): (0.0, 27.75),
+             (10, 10): (72.25, 100.0), (0, 50): (0.0, 7.14)}  # fmt: skip
+    for (k, n), (lo, hi) in cases.items():
+        got = wilson_interval(k, n)
+        assert got is not None and abs(got[0] - lo) < 0.01 and abs(got[1] - hi) < 0.01, (k, n)
+    assert wilson_interval(0, 0) is None
+    assert fmt_ci((20, 22)) == " [72.2–97.5]" and fmt_ci(None) == ""
+
+
+def test_success_counts_pool_the_seeds_and_only_when_exact():
+    """An evaluation's rates are means over seeds of successes / episodes: pooled counts are
+    the mean times episodes × seeds (each seed's best checkpoint for max), or one seed's;
+    none when a count is absent or the rate is not of whole episodes."""
+    ev = {"success_rate_max": 94.0, "success_rate_last": 88.0, "seed0_success_rate_max": 98.0,
+          "episodes": 50, "seeds": 3}  # fmt: skip
+    assert sr_counts(ev) == (141, 150) and sr_counts(ev, "last") == (132, 150)
+    assert sr_counts(ev, seed=0) == (49, 50)
+    assert sr_counts(ev | {"success_rate_max": 33.3}) is None  # 49.95 of 150: no count
+    assert sr_counts({"success_rate_max": 94.0, "seeds": 3}) is None  # episodes unknown
+    assert fmt_sr(ev) == "94.0" + fmt_ci((141, 150)) and fmt_sr(None) == "missing"
+
+
+def test_a_generate_only_pipeline_reports_what_it_makes_with_intervals():
+    """A pipeline that generates D0 only (the quickstart's): its DGR with its interval and
+    failures per subtask; no policy rows, no D1 row, no ablations section; once a D0 policy
+    is evaluated, its rows only (not the paper's D1 row), each rate with its interval."""
+    d0 = replace(Params(), generate=replace(Params().generate, variants=["D0"]))
+    files = (
+        gen("stack_cube", "D0", 90.9, attempts=22, failures_place_on_cubeB=2),
+        m("coverage", "stack_cube", "D0", support_coverage_joint=2.6),
+    )
+    md = report_md(d0, *files)
+    headings = [ln for ln in md.splitlines() if ln.startswith("#")]
+    assert headings == [
+        "# MimicGen on stack_cube: our numbers and the paper's",
+        "## Data generation rate (DGR, %)",
+        "## Support coverage of initial scenes (%, paper Q)",
+    ]
+    assert "Brackets after a DGR or success rate give its 95% confidence interval" in md
+    assert rows_of(md, "| D") == [
+        "| D0 | 22 | 20 | 90.9 [72.2–97.5] | grasp_cubeA 0, place_on_cubeB 2 "
+        "| 94.3 (Table O.1, Stack D0) | 71.6 (Table M.2, Stack D0) [no NN + no per-subtask] |",
+        "| D0 | missing | missing / missing | 2.6 | missing | missing |  |",
+    ]
+    ev = m("evaluate", "stack_cube", "D0", data="D0", success_rate_max=96.0,
+           success_rate_max_std=0.0, success_rate_last=86.0, episodes=50, seeds=1)  # fmt: skip
+    md = report_md(d0, *files, ev)
+    assert rows_of(md, "| source demos", "| generated ") == [
+        "| source demos | D0 | missing | missing | missing | 38.7 ± 4.1 (Table P.1, Stack D0) |",
+        "| generated D0 | D0 | 96.0 ± 0.0 [86.5–98.9] | 86.0 [73.8–93.0] | 50 × 1 "
+        "| 100.0 ± 0.0 (Table P.1, Stack D0) |",
+    ]
+    assert headline_numbers(d0, MetricsSet((*files, ev))) == {
+        "coverage_D0": 2.6, "dgr_D0": 90.9, "dgr_D0_lo": 72.2, "dgr_D0_hi": 97.5,
+        "sr_D0_on_D0": 96.0, "sr_D0_on_D0_lo": 86.5, "sr_D0_on_D0_hi": 98.9,
+    }  # fmt: skip
+
+
 def test_report_shows_missing_metrics_and_never_invents_rows():
     md = report_md(Params(), gen("stack_cube", "D1", 93.0, attempts=1075))
     d0, d1 = rows_of(md, "| D0 | "), rows_of(md, "| D1 | ")
-    assert d0[0].startswith("| D0 | missing | missing | missing | 94.3 (Table O.1, Stack D0)")
-    assert "| 93.0 | 90.0 (Table O.1, Stack D1)" in d1[0]
+    assert d0[0].startswith(
+        "| D0 | missing | missing | missing | missing | 94.3 (Table O.1, Stack D0)"
+    )
+    assert "| 93.0 [91.3–94.4] | grasp_cubeA 0, place_on_cubeB 0 | 90.0 (Table O.1" in d1[0]
     assert "63.3 (Table M.2, Stack D1) [no NN + no per-subtask]" in d1[0]  # our settings' row
-    sr = rows_of(md, "| source demos", "| generated ")
-    assert len(sr) == 3 and all(ln.count("missing") == 3 for ln in sr)
-    assert "38.7 ± 4.1 (Table P.1, Stack D0)" in sr[0]
-    assert "Heat maps for D0: missing." in md and "No saved ablation runs" in md
+    assert "Heat maps for D0: missing." in md
+    # no policy trained or evaluated, no ablation run saved: no such sections
+    assert "## Policy success rate" not in md and "## Ablations" not in md
 
     ev = m("evaluate", "stack_cube", "D1", data="D1", success_rate_max=96.0,
            success_rate_max_std=1.5, success_rate_last=90.0, success_rate_last_std=2.0,
            episodes=50, seeds=3)  # fmt: skip
     md = report_md(Params(), gen("stack_cube", "D1", 93.0, attempts=1075), ev)
     assert rows_of(md, "| generated D1") == [
-        "| generated D1 | D1 | 96.0 ± 1.5 | 90.0 ± 2.0 | 50 × 3 "
+        "| generated D1 | D1 | 96.0 ± 1.5 [91.5–98.2] | 90.0 ± 2.0 [84.2–93.8] | 50 × 3 "
         "| 100.0 ± 0.0 (Table P.1, Stack D1) |"
     ]
+    sr = rows_of(md, "| source demos", "| generated ")  # the paper's P.1 rows, ours missing
+    assert len(sr) == 3 and "38.7 ± 4.1 (Table P.1, Stack D0)" in sr[0]
+    assert all(ln.count("missing") == 3 for ln in sr[:2])
     # a generate run of another purpose or arm is not the main run's
     other = (
         gen("stack_cube", "D0", 50.0, purpose="dgr"),
@@ -285,12 +351,18 @@ def test_report_ablations_show_deltas_against_the_base_and_the_papers_direction(
     rows = {r[0]: r for r in ablation.rows}
     assert set(rows) == {"default", "action_noise_0", "nn_per_subtask", "seed_1", "seed_2"}
     assert rows["action_noise_0"][1] == "action_noise=0.0" and rows["action_noise_0"][5] == "+5.0"
+    assert rows["action_noise_0"][4] == "95.0 [91.0–97.3]"
     assert "Square DGR 48.9 → 50.7 (+1.8, Table M.1)" in rows["action_noise_0"][8]
     assert rows["nn_per_subtask"][5] == "+2.5"
     assert rows["nn_per_subtask"][8].startswith("Stack DGR 63.3 → 90.0 (+26.7, Table M.2)")
     assert rows["default"][1] == "(base)" and rows["default"][5] == ""
     seeds = next(t for t in tables if t.columns[0] == "variant" and "seeds" in t.columns)
-    assert seeds.rows[0][1:5] == ("0, 1, 2", "90.0, 91.0, 89.0", "90.0 ± 1.0", "2.0")
+    assert seeds.rows[0][1:5] == (
+        "0, 1, 2",
+        "90.0 [85.1–93.4], 91.0 [86.2–94.2], 89.0 [83.9–92.6]",
+        "90.0 ± 1.0 [87.3–92.2]",  # the 600 attempts pooled
+        "2.0",
+    )
     assert "69.3 ± 0.4 (Table S.1, Stack Three D1)" in seeds.rows[0][5]
 
 
@@ -305,9 +377,11 @@ def test_transfer_table_reads_each_arms_metrics():
         )
     )  # fmt: skip
     table = transfer_table(ms, "pybullet", ["stack"], ["D0"], ["panda", "iiwa", "xarm6"])
-    assert table.rows == (("stack (D0)", "95.0 (7/200 IK)", "78.5 (42/200 IK)", "missing"),)
+    assert table.rows == (
+        ("stack (D0)", "95.0 [91.0–97.3] (7/200 IK)", "78.5 [72.3–83.6] (42/200 IK)", "missing"),
+    )
     main = transfer_table(ms, "maniskill", ["stack_cube"], ["D0"], ["panda", "xarm6"])
-    assert main.rows == (("stack_cube (D0)", "93.5 (0/200 IK)", "missing"),)
+    assert main.rows == (("stack_cube (D0)", "93.5 [89.2–96.2] (0/200 IK)", "missing"),)
 
 
 def test_transfer_policies_sit_beside_p1_with_the_generating_arms_dgr():
@@ -332,7 +406,7 @@ def test_transfer_policies_sit_beside_p1_with_the_generating_arms_dgr():
     blocks = transfer_policy_blocks(params, [spec], MetricsSet(files), paper)
     assert blocks[0] == Heading(2, "Policies on pybullet: the paper's own geometry")
     assert blocks[-1].rows == (
-        ("`stack_three`", "Stack Three", "79.0 / 71.3", "missing / 68.9", "`cpu`",
+        ("`stack_three`", "Stack Three", "79.0 [72.8–84.1] / 71.3", "missing / 68.9", "`cpu`",
          "84.7 ± 2.5 (3 seeds)", "88.0 ± 1.6 (Table P.1, Stack Three D0)", "yes (≥ 83.0)"),
     )  # fmt: skip
     assert transfer_headline_numbers(params, MetricsSet(files))["sr_stack_three_D0_on_D0"] == 84.7
@@ -416,7 +490,8 @@ def test_the_coverage_and_report_stages_together(tmp_path):
     assert 'src="data:image/png;base64,iVBORyBmYWtl"' in page
     assert "Task suite" not in md
     assert (out / "summary.json").read_text() == json.dumps(
-        {"coverage_D1": 73.9, "dgr_D0": 96.2, "dgr_D1": 93.0, "sr_D0_on_D0": 86.7,
+        {"coverage_D1": 73.9, "dgr_D0": 96.2, "dgr_D0_hi": 98.0, "dgr_D0_lo": 92.3,
+         "dgr_D1": 93.0, "dgr_D1_hi": 95.8, "dgr_D1_lo": 88.6, "sr_D0_on_D0": 86.7,
          "sr_source_on_D0": 0.0}, indent=2
     ) + "\n"  # fmt: skip
     # the same inputs, the same bytes: DVC sees no change
@@ -440,7 +515,8 @@ def test_a_report_folder_with_heat_map_copies_is_replaced_and_one_with_other_fil
     run_report(tmp_path, metrics, tmp_path / "plots", out)
     assert sorted(p.name for p in out.iterdir()) == ["report.html", "report.md", "summary.json"]
     assert json.loads((out / "summary.json").read_text()) == {
-        "coverage_D1": 73.9, "dgr_D0": 96.2, "dgr_D1": 93.0
+        "coverage_D1": 73.9, "dgr_D0": 96.2, "dgr_D0_hi": 98.0, "dgr_D0_lo": 92.3,
+        "dgr_D1": 93.0, "dgr_D1_hi": 95.8, "dgr_D1_lo": 88.6,
     }  # fmt: skip
     assert "Policies over training" not in (out / "report.md").read_text()
     (out / "notes.txt").write_text("mine")
@@ -462,10 +538,13 @@ def test_the_summary_holds_the_numbers_the_report_shows():
         m("evaluate", "stack_cube", "D1", data="D1", robot="xarm6", success_rate_max=99.0),
     )
     numbers = headline_numbers(Params(), MetricsSet(files))
-    assert numbers == {"dgr_D0": 96.2, "dgr_D1": 93.0, "sr_source_on_D0": 0.0,
+    # a DGR's interval from its counts; these evaluations hold no episodes: no SR interval
+    assert numbers == {"dgr_D0": 96.2, "dgr_D0_lo": 92.3, "dgr_D0_hi": 98.0, "dgr_D1": 93.0,
+                       "dgr_D1_lo": 88.6, "dgr_D1_hi": 95.8, "sr_source_on_D0": 0.0,
                        "sr_D0_on_D0": 86.7, "coverage_D1": 73.9}  # fmt: skip
     md = report_md(Params(), *files)
-    assert rows_of(md, "| D0 | 200 | 192 | 96.2 |") and rows_of(md, "| D1 | 200 | 186 | 93.0 |")
+    assert rows_of(md, "| D0 | 200 | 192 | 96.2 [92.3–98.0] |")
+    assert rows_of(md, "| D1 | 200 | 186 | 93.0 [88.6–95.8] |")
     assert rows_of(md, "| generated D0 | D0 | 86.7 ± 1.2 |")
     assert rows_of(md, "| source demos | D0 | 0.0 |") and rows_of(md, "| D1 | 3 | ")
     variants = ["D0", "D1", "D2"]  # every number of every variant: twelve keys
@@ -475,10 +554,14 @@ def test_the_summary_holds_the_numbers_the_report_shows():
               for v in variants for d in ("source", v)]  # fmt: skip
     d2 = replace(Params(), generate=replace(Params().generate, variants=variants))
     assert sorted(headline_numbers(d2, MetricsSet(tuple(every)))) == sorted(
-        f"{k}_{v}" for v in variants for k in ("dgr", "sr_source_on", f"sr_{v}_on", "coverage")
+        f"{k}_{v}{b}"
+        for v in variants
+        for k in ("dgr", "sr_source_on", f"sr_{v}_on", "coverage")
+        for b in (("", "_lo", "_hi") if k == "dgr" else ("",))
     )
     assert headline_numbers(Params(), MetricsSet(POLICIES[:3])) == {
-        "dgr_D0": 96.2, "dgr_D1": 93.0, "coverage_D1": 73.9
+        "dgr_D0": 96.2, "dgr_D0_lo": 92.3, "dgr_D0_hi": 98.0, "dgr_D1": 93.0,
+        "dgr_D1_lo": 88.6, "dgr_D1_hi": 95.8, "coverage_D1": 73.9
     }  # fmt: skip
 
 
@@ -558,8 +641,10 @@ def test_the_suite_report_has_the_suite_sections_only():
     ]
     md = render_markdown(blocks)
     assert "stack_cube" not in md
-    assert rows_of(md, "| peg_insertion (D0) | Square | 52.0 (104/200) | 0.025 |")
-    assert rows_of(md, "| peg_insertion | Square | 52.0 (104/200) | 43.0 (86/200) | -9.0 |")
+    assert rows_of(md, "| peg_insertion (D0) | Square | 52.0 [45.1–58.8] (104/200) | 0.025 |")
+    assert rows_of(
+        md, "| peg_insertion | Square | 52.0 [45.1–58.8] (104/200) | 43.0 [36.3–49.9] (86/200) |"
+    )
     assert "Mug Cleanup (Table F.1, DGR %): D0 29.5, O1 31.0, O2 24.5" in md
     assert rows_of(md, "| peg_insertion (D0) | Square | missing | 62.0 / 54.0 | missing |")
     assert "†" not in md
@@ -596,7 +681,7 @@ def test_the_dataset_size_comparison_has_a_row_per_size_and_its_figure():
     png = figures["dataset_size.png"]
     assert png.startswith(b"\x89PNG\r\n\x1a\n") and draw_dataset_size(params, ms) == figures
     md = render_markdown(scaling_blocks(params, ms, figures))
-    assert "the first N of 5000 demos kept of 8929 attempts (DGR 56.0 %)" in md
+    assert "the first N of 5000 demos kept of 8929 attempts (DGR 56.0 [55.0–57.0] %)" in md
     assert rows_of(md, "| 200 | 180 / 20 | 20.0 ± 2.0 | 14.0 ± 2.0 | 1 |")
     assert rows_of(md, "| 1000 | 900 / 100 | 62.0 ± 0.0 | 54.0 ± 0.0 | 1 |")
     assert rows_of(md, "| 5000 | missing | missing | missing | missing |")
@@ -680,10 +765,10 @@ def test_paper_geometry_tasks_meet_p1_minus_5_with_their_spread_over_seeds():
     assert blocks[0] == Heading(2, "The paper's own geometry")
     p1 = "88.0 ± 1.6 (Table P.1, Stack Three D0)"
     assert blocks[-1].rows == (
-        ("`stack_tower`", "Stack Three", "70.0 / 71.3", "missing / 68.9", "`cpu` (the suite's)",
-         "67.3 ± 3.4 (3 seeds)", p1, "no (≥ 83.0)"),
+        ("`stack_tower`", "Stack Three", "70.0 [63.3–75.9] / 71.3", "missing / 68.9",
+         "`cpu` (the suite's)", "67.3 ± 3.4 (3 seeds)", p1, "no (≥ 83.0)"),
         ("", "", "", "", "`paper_gpu`", "88.0 ± 1.6 (3 seeds)", p1, "yes (≥ 83.0)"),
-        ("`peg_insertion_square`", "Square", "missing / 73.7", "87.5 / 48.9",
+        ("`peg_insertion_square`", "Square", "missing / 73.7", "87.5 [82.2–91.4] / 48.9",
          "`cpu` (the suite's)", "96.0 (1 seed)", "98.0 ± 1.6 (Table P.1, Square D0)",
          "yes (≥ 93.0)"),
     )  # fmt: skip
@@ -711,8 +796,8 @@ def test_long_tasks_sit_beside_the_papers_kitchen_and_coffee_preparation():
     blocks = suite.long_task_blocks(params, specs, MetricsSet(files), load_paper_results(PAPER))
     assert blocks[0] == Heading(2, "Long tasks beside the paper's")
     assert blocks[-1].rows == (
-        ("`drawer_cleanup` (ours)", "6", "64.0 (128/200)", "missing", "30.5 (61/200)", "2.0",
-         "48.0"),
+        ("`drawer_cleanup` (ours)", "6", "64.0 [57.1–70.3] (128/200)", "missing",
+         "30.5 [24.5–37.2] (61/200)", "2.0", "48.0"),
         ("Kitchen (paper)", "7", "100.0", "42.7", "missing", "43.3 ± 3.4", "100.0 ± 0.0"),
         ("Coffee Preparation (paper)", "5", "53.2", "36.1", "missing", "2.0 ± 0.0",
          "76.0 ± 5.7"),
@@ -745,7 +830,7 @@ def test_two_arm_tasks_have_their_own_table_and_stay_out_of_the_long_tasks():
         "left: grasp_cubeA, carry_cubeA, stack_cubeA; right: grasp_cubeB, place_cubeB, retreat"
     )
     assert row[2] == "sequential: right place_cubeB → left stack_cubeA"
-    assert row[3] == "86.5 (173/200); failed: left 10, right 17"
+    assert row[3] == "86.5 [81.1–90.6] (173/200); failed: left 10, right 17"
     assert row[4:] == ("missing", "missing", "4.0 / 2.0", "60.0 / 52.0")
     assert suite.two_arm_blocks(params, specs[1:], ms) == []
     dgr = suite.suite_dgr_blocks(params, specs[:1], ms, PaperResults(()))[-1].rows[0]
@@ -772,7 +857,9 @@ def test_suite_ablations_compare_with_their_own_default_run():
     assert blocks[0] == Heading(2, "Ablations on pull_cube_tool (Hammer Cleanup)")
     rows = {r[0]: r for r in blocks[-1].rows}
     assert rows["default"][1] == "(base)"
-    assert rows["action_noise_0"][1:6] == ("action_noise=0.0", "D1", "200", "62.0 ± 3.4", "+18.5")
+    assert rows["action_noise_0"][1:6] == (
+        "action_noise=0.0", "D1", "200", "62.0 [55.1–68.4]", "+18.5"
+    )  # fmt: skip
     assert rows["pose_noise_L2"][1] == "pose_noise.level=L2" and rows["pose_noise_L2"][5] == "-14.0"
     lone = suite_ablation_blocks("pull_cube_tool", "Hammer Cleanup", runs[1:], paper)
     assert isinstance(lone[-1], Text)
@@ -805,14 +892,14 @@ def test_the_transit_report_sets_each_cells_linear_and_planned_runs_side_by_side
     md = render_markdown(build_transit_report(Params(), MetricsSet(tuple(files))))
     wall = rows_of(md, "| stack_cube_wall (wall)")
     assert wall == [
-        "| stack_cube_wall (wall) | 4.5 (9/200) | 60.0 (120/200) | +55.5 | 3 | 0.50 | 1.25 "
-        "| 200 | 200 |"
+        "| stack_cube_wall (wall) | 4.5 [2.4–8.3] (9/200) | 60.0 [53.1–66.5] (120/200) | +55.5 "
+        "| 3 | 0.50 | 1.25 | 200 | 200 |"
     ]
     assert rows_of(md, "| stack_cube_wall (D0)")[0].startswith(
-        "| stack_cube_wall (D0) | 95.0 (190/200) | missing | missing | missing |"
+        "| stack_cube_wall (D0) | 95.0 [91.0–97.3] (190/200) | missing | missing | missing |"
     )
     assert rows_of(md, "| pull_cube_tool (D0)")[0].startswith(
-        "| pull_cube_tool (D0) | missing | 80.0 (160/200) | missing | 3 |"
+        "| pull_cube_tool (D0) | missing | 80.0 [73.9–85.0] (160/200) | missing | 3 |"
     )
     assert rows_of(md, "| place_sphere (D0)")[0].startswith("| place_sphere (D0) | missing |")
     assert rows_of(md, "| linear |", "| planned |") == [

@@ -1,11 +1,15 @@
 """Every task file of every back end: its spec is consistent with what its env provides
-(signals, objects, observation keys) and its reset variants sample inside the bounds that
-coverage bins. Task files are found by name, as the stages find them."""
+(signals, objects, observation keys), its reset variants sample inside the bounds that
+coverage bins, and its docstring reads as ManiSkill's task docstrings do. Task files are
+found by name, as the stages find them."""
 
 from __future__ import annotations
 
+import importlib
+import inspect
 import itertools
 import math
+import re
 
 import numpy as np
 import pytest
@@ -33,6 +37,45 @@ def test_spec_is_consistent(backend, task):
         for o in spec.objects:
             b = variant.bounds[o]
             assert b.x[0] < b.x[1] and b.y[0] < b.y[1] and b.yaw[0] <= b.yaw[1], (name, o)
+
+
+# ManiSkill's task docstring headings (e.g. StackCube-v1's), then the spec's subtasks
+HEADINGS = ("Task Description", "Randomizations", "Success Conditions", "Subtasks")
+
+
+def _sections(doc: str) -> dict[str, str]:
+    """The text under each ``**Heading:**`` line of ``doc``, by heading, in order."""
+    parts = re.split(r"^\*\*(.+?):\*\*$", doc, flags=re.M)
+    return dict(zip(parts[1::2], parts[2::2], strict=True))
+
+
+def _bullets(section: str) -> list[str]:
+    """The ``- `` items of a section, each with its continuation lines."""
+    return [b.strip() for b in re.split(r"^- ", section, flags=re.M)[1:]]
+
+
+@pytest.mark.parametrize(("backend", "task"), TASKS, ids=IDS)
+def test_task_docstring_has_maniskills_headings_and_the_specs_subtasks(backend, task):
+    """The task file's docstring has ManiSkill's headings and Subtasks, in this order; a
+    bullet per reset variant under Randomizations, and one per subtask, in the spec's order,
+    opening with its name and naming its reference object, its term signal (or that the demo
+    ends it) and, with two arms, its arm."""
+    spec = envs.task_spec(backend, task)
+    module = importlib.import_module(f"envs.{backend}.tasks.{task}")
+    sections = _sections(inspect.cleandoc(module.__doc__ or ""))
+    assert tuple(sections) == HEADINGS, module.__file__
+    variants = {b.split(maxsplit=1)[0].rstrip(":") for b in _bullets(sections["Randomizations"])}
+    assert set(spec.variants) <= variants, module.__file__
+    bullets = _bullets(sections["Subtasks"])
+    assert len(bullets) == len(spec.subtasks), module.__file__
+    for sub, bullet in zip(spec.subtasks, bullets, strict=True):
+        assert bullet.startswith(f"``{sub.name}``"), (module.__file__, sub.name)
+        assert f"reference ``{sub.reference_object}``" in bullet, (module.__file__, sub.name)
+        signal = f"ends when ``{sub.term_signal}``"
+        ends = "ends with the demo" if sub.term_signal is None else signal
+        assert ends in " ".join(bullet.split()), (module.__file__, sub.name)
+        if spec.several_arms:
+            assert f"arm ``{sub.arm}``" in bullet, (module.__file__, sub.name)
 
 
 def test_lookups_name_the_valid_choices():

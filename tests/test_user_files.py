@@ -5,6 +5,7 @@ starts (no simulator here)."""
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import re
 from pathlib import Path
@@ -263,6 +264,100 @@ def test_a_maniskill_file_on_pybullet_stops_the_source_stage(tmp_path, monkeypat
     own = r"source\.from_file: .*demo\.h5: backend pybullet reads no source file format of its own"
     with pytest.raises(InputError, match=own):
         run_source(tmp_path, monkeypatch, params)
+
+
+# -- the source stage names the file it read ------------------------------------------------
+
+REPO = Path(__file__).resolve().parents[1]
+# a committed run of the demonstrator's demos (source.from_file null)
+COMMITTED = REPO / "quickstart/metrics/source_stack_cube.json"
+
+
+def run_source_recorded(tmp_path: Path, monkeypatch, section: str, *argv: str) -> bytes:
+    """stages.source.run (params' source: ``section``) with its recording replaced by the
+    committed run's numbers (no simulator, no store written): the metrics file's bytes."""
+    import envs
+    from stages import source
+
+    numbers = json.loads(COMMITTED.read_text())
+    recording = argparse.Namespace(
+        steps=[{}] * numbers["demos"], demonstrator_failures=0, replay_failures=0,
+        episode_fields=dict, metrics=lambda: {k: numbers[k] for k in (
+            "demos", "dropped_planner", "dropped_replay", "mean_length", "demonstrator_seeds")},
+    )  # fmt: skip
+    env = argparse.Namespace(control_mode="pd_ee_delta_pose", control_freq=20)
+    monkeypatch.setattr(envs, "make_env", lambda *args: env)
+    monkeypatch.setattr(source, "record_source_demos", lambda *args: recording)
+    monkeypatch.setattr("mimicgen_pipe.store.write_store", lambda path, *args: path.mkdir())
+    (tmp_path / "params.yaml").write_text(f"task: stack_cube\nsource: {section}\n")
+    parser = argparse.ArgumentParser()
+    source.add_arguments(parser)
+    source.run(parser.parse_args(["--params", str(tmp_path / "params.yaml"),
+                                  "--out", str(tmp_path / "s.zarr"),
+                                  "--metrics", str(tmp_path / "s.json"), *argv]))  # fmt: skip
+    return (tmp_path / "s.json").read_bytes()
+
+
+def test_source_metrics_without_a_file_keep_their_bytes(tmp_path, monkeypatch, capsys):
+    assert run_source_recorded(tmp_path, monkeypatch, "{num_demos: 10}") == COMMITTED.read_bytes()
+    assert capsys.readouterr().out.startswith("source: 10 demos of stack_cube on maniskill (D0)\n")
+
+
+@pytest.mark.parametrize("how", ["params", "--from-file"])
+def test_the_source_stage_names_the_file_it_read(tmp_path, monkeypatch, capsys, how):
+    """Its path as given and its sha256 (and its .json's) in the log line, the metrics and
+    the report, so that a reader can tell which version of the file a run used."""
+    from mimicgen_pipe.report.inputs import read_metrics_folder
+    from mimicgen_pipe.report.method import source_file_blocks
+
+    h5 = trajectory_file(tmp_path / "input", 10)
+    sha = hashlib.sha256(h5.read_bytes()).hexdigest()
+    if how == "params":
+        got = run_source_recorded(tmp_path, monkeypatch, f"{{num_demos: 10, from_file: {h5}}}")
+    else:
+        got = run_source_recorded(tmp_path, monkeypatch, "{num_demos: 10}", "--from-file", str(h5))
+    assert json.loads(got) == json.loads(COMMITTED.read_text()) | {
+        "source_file": str(h5),
+        "source_file_sha256": sha,
+        "source_file_json_sha256": hashlib.sha256(h5.with_suffix(".json").read_bytes()).hexdigest(),
+    }
+    assert f"source: 10 demos of stack_cube on maniskill (D0) from {h5} (sha256 {sha})\n" in (
+        capsys.readouterr().out
+    )
+    params = argparse.Namespace(task="stack_cube", backend="maniskill")
+    (text,) = source_file_blocks(params, read_metrics_folder(tmp_path))
+    assert text.text == f"Source demos brought in from `{h5}` (sha256 `{sha}`)."
+
+
+def test_the_source_stage_refuses_a_params_file_its_pipeline_does_not_track(tmp_path, monkeypatch):
+    """The check stage's rule (source_inputs.check_place), also where the source stage runs
+    alone (dvc repro -s source); --from-file, a hand run's choice, may name any file."""
+    from mimicgen_pipe import pipelines
+
+    monkeypatch.setattr(pipelines, "_current", None)  # restored: stage_params sets it
+    (tmp_path / ".dvc").mkdir()
+    (tmp_path / "dvc.yaml").write_text((REPO / "dvc.yaml").read_text())
+    h5 = trajectory_file(tmp_path / "input", 10)
+    with pytest.raises(InputError) as exc:
+        run_source_recorded(tmp_path, monkeypatch, f"{{num_demos: 10, from_file: {h5}}}")
+    assert re.fullmatch(
+        r".*params\.yaml: source\.from_file: .*demo\.h5: expected a file in \S*inputs/, the "
+        r"folder that the source stage of \S*dvc\.yaml tracks .*",
+        one_line(exc),
+    )
+    assert not (tmp_path / "s.json").exists()
+    run_source_recorded(tmp_path, monkeypatch, "{num_demos: 10}", "--from-file", str(h5))
+    assert json.loads((tmp_path / "s.json").read_text())["source_file"] == str(h5)
+
+
+def test_source_from_file_must_be_a_regular_file(tmp_path, monkeypatch):
+    (tmp_path / "input").mkdir()
+    with pytest.raises(InputError) as exc:
+        run_source_recorded(tmp_path, monkeypatch, "{}", "--from-file", str(tmp_path / "input"))
+    assert one_line(exc) == (
+        f"--from-file {tmp_path / 'input'}: cannot read the file (it is a folder, not a "
+        "regular file)"
+    )
 
 
 # -- boundaries files -----------------------------------------------------------------------

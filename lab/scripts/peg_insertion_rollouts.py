@@ -28,6 +28,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from _followed import Followed
 
 import envs
 from envs.maniskill.tasks import peg_insertion
@@ -80,8 +81,8 @@ def main() -> None:
     for i in range(args.episodes):
         seed = evaluation_seed(seed0, args.variant, i)
         heads: list[tuple[float, float]] = []  # after the reset, then after every step
-        r = rollout(env, policy, seed, args.variant, spec.horizon, spec.objects,
-                    on_step=lambda e, heads=heads: heads.append(head_in_hole(e)))  # fmt: skip
+        followed = Followed(env, lambda e, heads=heads: heads.append(head_in_hole(e)))
+        r = rollout(followed, policy, seed, args.variant, spec.horizon, spec.objects)
         depth = [x for x, _ in heads[1:]]
         off_axis = heads[-1][1]
         rows.append(

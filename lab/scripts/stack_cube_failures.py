@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from _followed import Followed
 
 import envs
 from mimicgen_pipe.evaluation import EPISODES_PER_BLOCK, evaluation_seed, rollout
@@ -86,7 +87,7 @@ class _Follow:
 
 def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict:
     follow = _Follow()
-    r = rollout(env, policy, seed, variant, horizon, objects, on_step=follow)
+    r = rollout(Followed(env, follow), policy, seed, variant, horizon, objects)
     s = env.subtask_signals()
     a, b = (env.object_poses()[k][:3, 3] for k in ("cubeA", "cubeB"))
     moved = np.linalg.norm(np.diff(np.asarray(follow.hand), axis=0), axis=1)  # [m] per step

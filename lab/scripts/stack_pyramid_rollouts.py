@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from _followed import Followed
 
 import envs
 from envs.maniskill.tasks.stack_pyramid import NEAR
@@ -90,7 +91,7 @@ def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict
     """One rollout as the evaluate stage runs it (:func:`mimicgen_pipe.evaluation.rollout`),
     followed cube by cube (poses world, [m])."""
     follow = _Follow()
-    r = rollout(env, policy, seed, variant, horizon, objects, on_step=follow)
+    r = rollout(Followed(env, follow), policy, seed, variant, horizon, objects)
     poses = env.object_poses()
     ab = poses["cubeA"][:3, 3] - poses["cubeB"][:3, 3]
     release = follow.release

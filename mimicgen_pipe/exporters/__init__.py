@@ -18,6 +18,10 @@ Each defines
 - ``write(store, path, info, **extra) -> dict``: the format at ``path``; returns figures for
   the metrics file (``image_bytes``: bytes its camera images take on disk).
 
+Each format records :func:`provenance` (what made the store, with which params and tool
+version, and the conventions of the arrays it wrote) in its own metadata, under
+PROVENANCE_KEY.
+
 Every format reads the same :class:`ExportInfo`, made by the export stage from the store's
 attrs and params.yaml, and the same store: :func:`read` gives every array but the camera
 images, which the formats read one episode at a time (:func:`episode_images`), so that an
@@ -27,6 +31,7 @@ cameras hold about 4.7 GB of them).
 
 from __future__ import annotations
 
+import importlib.metadata
 import types
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -37,6 +42,7 @@ import numpy as np
 
 from mimicgen_pipe.camera_calibration import store_calibration
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.observations import QUAT_ORDER
 from mimicgen_pipe.outputs import OutputKind, directory_kind
 from mimicgen_pipe.registry import choices, load
 from mimicgen_pipe.segments import subtask_at_steps
@@ -113,6 +119,43 @@ def export_info(
         subtasks=tuple(spec.subtasks),
         arms=spec.several_arms,
     )
+
+
+TOOL = "mimicgen-pipe"  # the package whose version the exports record
+PROVENANCE_KEY = "mimicgen_pipe"  # the metadata key each format records provenance under
+POSE_FRAME = "world"  # the frame of every position, quaternion and pose written
+UNITS = {"length": "m", "angle": "rad", "time": "s"}
+# the store attrs that say what made it: the params of the stage that wrote it (generate's
+# for a generated or failed store, source's for a source store), observe's for images
+_MADE_BY = ("kind", "run_id", "task", "variant", "backend", "robot", "params", "observe")
+
+
+def tool_version() -> str:
+    """mimicgen-pipe's version from its package metadata ("unknown" when run from a source
+    tree that was never installed)."""
+    try:
+        return importlib.metadata.version(TOOL)
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def provenance(
+    attrs: Mapping[str, Any], quaternion_order: str = QUAT_ORDER, control_mode: str | None = None
+) -> dict[str, Any]:
+    """What an export holds, for its metadata: the tool and its version, what made the store
+    (its attrs of _MADE_BY: kind, run id, task, variant, back end, robot, params; None where
+    the store has none, e.g. a source store's run id) and the conventions of the arrays the
+    format wrote: quaternion order, pose frame, units, the actions' control mode (the
+    store's unless the format writes others) and control frequency [Hz]."""
+    made_by = {k: attrs.get(k) for k in _MADE_BY if k != "observe" or k in attrs}
+    conventions = {
+        "quaternion_order": quaternion_order,
+        "pose_frame": POSE_FRAME,
+        "units": UNITS,
+        "control_mode": control_mode or attrs.get("control_mode"),
+        "control_freq_hz": int(attrs["control_freq"]),
+    }
+    return {"tool": TOOL, "tool_version": tool_version()} | made_by | {"conventions": conventions}
 
 
 def exporter(fmt: str) -> types.ModuleType:

@@ -27,12 +27,17 @@ frames one after the other; an episode's ``videos/<key>/from_timestamp`` and
 ``camera.intrinsics`` (3x3 K [px]), ``camera.fov_y`` [rad], ``camera.frame``, ``camera.pose``
 (4x4, the camera in that frame [m]) and ``camera.axes`` (mimicgen_pipe/camera_calibration.py).
 
-``meta/``: ``info.json`` (features with per-dimension names and the videos' ``video.*``
-info, fps = control frequency), ``tasks.parquet`` (the task sentence),
+``meta/``: ``info.json`` (features with per-dimension names, a quaternion's ``<key>.qw``,
+``.qx``, ``.qy``, ``.qz`` in the order written; the videos' ``video.*`` info; fps = control
+frequency; ``mimicgen_pipe``: exporters.provenance, what made the data and its conventions),
+``tasks.parquet`` (the task sentence),
 ``subtasks.parquet`` (the subtasks, e.g. "grasp cubeA", indexed by ``subtask_index``),
 ``episodes/chunk-000/file-000.parquet`` (length, row range, video file and time span per
 episode, with per-episode stats) and ``stats.json`` (dataset stats; an image's are per
 channel, shape (3, 1, 1), in [0, 1], over the frames LeRobot samples from each episode).
+
+``README.md``: the dataset card, as LeRobot writes one (Hugging Face card metadata, then
+the task, episodes, cameras, how the data was made, its conventions and info.json).
 
 A store without term signals or subtask ends has no ``subtask_index`` and no
 ``subtasks.parquet``; a store without images no videos.
@@ -52,7 +57,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mimicgen_pipe.camera_calibration import store_calibration
-from mimicgen_pipe.observations import is_robot_key
+from mimicgen_pipe.exporters import PROVENANCE_KEY, provenance
+from mimicgen_pipe.observations import QUAT_ORDER, is_quat_key, is_robot_key
 from mimicgen_pipe.store import EpisodeStore, store_cameras
 
 FILE_NAME = "lerobot"  # the dataset's folder in the export directory
@@ -62,6 +68,7 @@ CODEBASE_VERSION = "v3.0"
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
 EPISODES_PATH = "meta/episodes/chunk-000/file-000.parquet"
+CARD_PATH = "README.md"  # the Hugging Face dataset card, in the dataset's root
 CHUNKS_SIZE = 1000  # files per chunk folder, LeRobot's
 VIDEO_FILE_MB = 200  # LeRobot's video_files_size_in_mb: the next episode starts a new file
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)  # LeRobot's stats keys q01 ... q99
@@ -80,7 +87,7 @@ VIDEO_CODEC = "libsvtav1"
 VIDEO_PIX_FMT = "yuv420p"
 VIDEO_OPTIONS = {"g": "2", "crf": "30", "preset": "12"}
 MIN_VIDEO_WIDTH = 32  # libsvtav1 3.0 kills the process (SIGFPE) on frames under 25 px wide
-_AXES = "xyzw"
+_AXES = "xyz"
 
 
 def check(store: EpisodeStore, info) -> str | None:
@@ -119,13 +126,17 @@ def observation_features(
 
 
 def state_names(store: EpisodeStore, obs_keys: Sequence[str]) -> list[str]:
-    """Per-dimension names of the keys' concatenation: <key>.<x|y|z> for up to 3 values (a
-    quaternion's are w, x, y, z: <key>.0 ... <key>.3), else <key>.<i>."""
+    """Per-dimension names of the keys' concatenation: a quaternion's <key>.qw, .qx, .qy, .qz
+    in the order written (observations.QUAT_ORDER), <key>.<x|y|z> for up to 3 values, else
+    <key>.<i>."""
     names = []
     for key in obs_keys:
         width = int(np.prod(store.data[f"obs/{key}"].shape[1:]))
-        axes = _AXES if width <= 3 else None
-        names += [f"{key}.{axes[i] if axes else i}" for i in range(width)]
+        if is_quat_key(key) and width == len(QUAT_ORDER):
+            parts = [f"q{c}" for c in QUAT_ORDER]
+        else:
+            parts = list(_AXES[:width]) if width <= len(_AXES) else [str(i) for i in range(width)]
+        names += [f"{key}.{part}" for part in parts]
     return names
 
 
@@ -343,6 +354,7 @@ def write(
     write_meta(path, store, info, episodes, stats | videos.stats, labelled)
     meta = info_json(store, info, features | videos.features)
     (path / "meta/info.json").write_text(json.dumps(meta, indent=2))
+    (path / CARD_PATH).write_text(dataset_card(store, info, meta))
     return {"image_bytes": videos.size}
 
 
@@ -494,4 +506,62 @@ def info_json(store: EpisodeStore, info, features: dict[str, dict]) -> dict[str,
         "data_path": DATA_PATH,
         "video_path": VIDEO_PATH if store_cameras(store.attrs) else None,
         "features": features,
+        PROVENANCE_KEY: provenance(store.attrs),
     }
+
+
+# a Hugging Face dataset card's metadata as LeRobot's create_lerobot_dataset_card writes it
+CARD_HEADER = """---
+task_categories:
+- robotics
+tags:
+- LeRobot
+- mimicgen-pipe
+configs:
+- config_name: default
+  data_files: data/*/*.parquet
+---
+"""
+
+
+def dataset_card(store: EpisodeStore, info, meta: Mapping[str, Any]) -> str:
+    """README.md, the dataset's card as LeRobot writes one (its metadata, then the layout
+    as meta/info.json): the task, episodes, cameras, how the data was made and its
+    conventions; ``meta``: info.json's content."""
+    made = meta[PROVENANCE_KEY]
+    conv = made["conventions"]
+    cameras = store_cameras(store.attrs)
+    seen = ", ".join(f"{c} ({h}x{w} px)" for c, (h, w) in cameras.items()) or "none"
+    run = f"run id `{made['run_id']}`" if made["run_id"] else "no run id"
+    lines = [
+        CARD_HEADER,
+        f"Episodes of a {made['kind']} store of mimicgen-pipe (MimicGen data generation), "
+        f"exported by mimicgen-pipe {made['tool_version']} in LeRobot's dataset format "
+        f"{CODEBASE_VERSION}.",
+        "",
+        "## Dataset Description",
+        "",
+        f"- **Task:** {info.task_description}",
+        f"- **Episodes:** {meta['total_episodes']}, **frames:** {meta['total_frames']}, "
+        f"**fps:** {meta['fps']}",
+        f"- **Robot:** {made['robot']} on the {made['backend']} back end, variant "
+        f"{made['variant']}",
+        f"- **Cameras:** {seen}",
+        f"- **How it was made:** the {made['kind']} store ({run}); the params that made it "
+        f"are `{PROVENANCE_KEY}.params` in [meta/info.json](meta/info.json).",
+        "",
+        "## Conventions",
+        "",
+        f"- Positions and poses in the {conv['pose_frame']} frame; lengths in "
+        f"{conv['units']['length']}, angles in {conv['units']['angle']}.",
+        f"- Quaternions {conv['quaternion_order']} (feature names `<key>.qw`, ...).",
+        f"- `action`: {', '.join(info.action_names)}; control mode {conv['control_mode']} "
+        f"at {conv['control_freq_hz']} Hz.",
+        "",
+        "## Dataset Structure",
+        "",
+        "[meta/info.json](meta/info.json):",
+        f"```json\n{json.dumps(meta, indent=4)}\n```",
+        "",
+    ]
+    return "\n".join(lines)

@@ -16,8 +16,10 @@ action and after the last (from the replay); ``rewards`` (T,) float32, the spars
 reward (1.0 after a step that leaves the task achieved, ManiSkill's reward_mode "sparse");
 ``success``, ``fail`` (no task of ours has a failure state: all False), ``terminated``
 (= success) and ``truncated`` (T,) bool, all from the replay. The ``.json``: ``env_info``
-(env_id, env_kwargs with reward_mode "sparse", max_episode_steps) and ``episodes``
-[{episode_id, episode_seed, reset_kwargs, control_mode, elapsed_steps, success}]. Replay them
+(env_id, env_kwargs with reward_mode "sparse" and obs_mode "state_dict", a dict of low-dim
+state as obs/ holds, max_episode_steps), ``episodes`` [{episode_id, episode_seed,
+reset_kwargs, control_mode, elapsed_steps, success}] and ``mimicgen_pipe``
+(exporters.provenance: what made the data, the file's control mode and conventions). Replay them
 with ``--use-first-env-state`` (the scene comes from the stored state; the seed alone gives
 ManiSkill's D0 scene, not ours).
 """
@@ -33,12 +35,16 @@ from pathlib import Path
 import numpy as np
 
 from mimicgen_pipe import hdf5
+from mimicgen_pipe.exporters import PROVENANCE_KEY, provenance
 from mimicgen_pipe.store import EpisodeStore
 
 FILE_NAME = "trajectory.h5"  # and its .json, and the pd_joint_pos copy of both
 JOINT_FILE_SUFFIX = ".pd_joint_pos"
 WRITES = rf"trajectory({re.escape(JOINT_FILE_SUFFIX)})?\.(h5|json)"
 REQUIRED = ("actions", "env_state")
+# ManiSkill's obs mode of a dict of low-dim state arrays, object poses included: what obs/
+# holds (the store's keys, not ManiSkill's own state_dict keys; PROVENANCE_KEY says whose)
+OBS_MODE = "state_dict"
 
 
 @dataclass(frozen=True)
@@ -80,10 +86,16 @@ def _split_states(states: np.ndarray, layout: Sequence[tuple[str, str, int]]) ->
     return out
 
 
+def _obs_keys(data: Mapping[str, np.ndarray]) -> list[str]:
+    """The low-dim observation keys of a store's (or an episode's) arrays: what obs/ holds."""
+    low_dim = (k for k in data if k.startswith("obs/") and not k.endswith("_image"))
+    return [k.removeprefix("obs/") for k in low_dim]
+
+
 def _observations(ep: Mapping[str, np.ndarray], rep: Replayed) -> dict[str, np.ndarray]:
     """A trajectory's ``obs/<key>``, (T + 1, d) float32: the store's observation before each
     action, then the replay's after the last one."""
-    keys = [k.removeprefix("obs/") for k in ep if k.startswith("obs/") and not k.endswith("_image")]
+    keys = _obs_keys(ep)
     missing = [k for k in keys if k not in rep.last_obs]
     if missing:
         raise ValueError(f"the replay's last observation lacks {missing}")
@@ -130,10 +142,13 @@ def _write_file(
                     "success": bool(rep.success[-1]),
                 }
             )
-    # rewards are the sparse success reward, which ManiSkill's reward_mode "sparse" gives
+    # rewards are the sparse success reward, which ManiSkill's reward_mode "sparse" gives;
+    # obs_mode says what the file's obs hold (a replay without -o records that mode too)
     kwargs = dict(env_info["env_kwargs"], control_mode=control_mode, reward_mode="sparse")
+    kwargs["obs_mode"] = OBS_MODE if _obs_keys(store.data) else "none"
     info = dict(env_info, env_kwargs=kwargs)
     meta = {"env_info": info, "source_type": "mimicgen-pipe", "episodes": episodes}
+    meta[PROVENANCE_KEY] = provenance(store.attrs, control_mode=control_mode)
     path.with_suffix(".json").write_text(json.dumps(meta, indent=2))
 
 

@@ -4,9 +4,12 @@ file back as source demos: mimicgen_pipe/robomimic_source.py).
 Layout written (robomimic's dataset schema, MimicGen's key names; MimicGen's generated files
 add datagen_info)::
 
-  data                  attrs: total (steps), env_args (JSON: env_name, type, env_kwargs;
-                        with images env_kwargs also has camera_names, camera_heights and
-                        camera_widths, as robomimic's env_meta), subtasks (JSON: the task's
+  data                  attrs: total (steps), env_args (JSON: robomimic's env_meta fields
+                        env_name, type, env_kwargs, and a note that robomimic cannot build
+                        it, not being a robosuite env; with images env_kwargs also has
+                        camera_names, camera_heights and camera_widths, as robomimic's
+                        env_meta), mimicgen_pipe (JSON: exporters.provenance, what made the
+                        data and its conventions, quaternions xyzw), subtasks (JSON: the task's
                         subtask names, in order), object_keys (JSON: what obs/object
                         concatenates), camera_calibration (JSON, with images: robomimic
                         camera name -> mimicgen_pipe/camera_calibration.py's calibration)
@@ -19,9 +22,11 @@ add datagen_info)::
       subtask_index     (T,) int64: the subtask each step belongs to, an index into
                         data.attrs["subtasks"] (exporters.subtask_labels)
       obs/<key>         (T, ...) float32, the low-dim observations by MimicGen's names
-                        (obs_name): robot0_eef_pos, robot0_eef_quat (wxyz), robot0_gripper_qpos,
+                        (obs_name): robot0_eef_pos, robot0_eef_quat, robot0_gripper_qpos,
                         the objects' keys as the store names them (cubeA_pos, ...), and
-                        ``object``: train.obs_keys' object keys concatenated in their order
+                        ``object``: train.obs_keys' object keys concatenated in their order;
+                        world frame, every quaternion xyzw as robosuite's (the store's wxyz
+                        reordered: robosuite_quat)
       obs/<camera>_image  (T, H, W, 3) uint8 RGB, one per camera of the store (agentview_image,
                         robot0_eye_in_hand_image), row t seen with obs/<key> row t; HDF5
                         chunks of 4 images, gzip level 4
@@ -57,6 +62,9 @@ import numpy as np
 from mimicgen_pipe import hdf5
 from mimicgen_pipe.camera_calibration import store_calibration
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.exporters import PROVENANCE_KEY, provenance
+from mimicgen_pipe.observations import QUAT_ORDER as OUR_QUAT_ORDER
+from mimicgen_pipe.observations import is_quat_key
 from mimicgen_pipe.store import EpisodeStore, store_cameras
 from mimicgen_pipe.taskspec import arm_key
 
@@ -75,6 +83,15 @@ OBJECT_KEY = "object"  # MimicGen's (robosuite's) concatenated object observatio
 # an arm's own observations, which robosuite names robot<i>_<key>
 _ROBOT_KEY = re.compile(r"(?:(?P<arm>[A-Za-z0-9]+)_)?(?P<key>eef_pos|eef_quat|gripper_qpos)")
 _HAND_CAMERAS = ("eye_in_hand",)  # robosuite names a robot's wrist camera robot0_eye_in_hand
+# robosuite's quaternion order (its robot0_eef_quat, an object's <obj>_quat), which robomimic
+# and MimicGen datasets hold: every quaternion of obs/ is written so
+QUAT_ORDER = "xyzw"
+# env_args' word that it is not an env robomimic builds (robomimic's env_meta has no such key)
+ENV_NOTE = (
+    "not a robosuite or gym env: env_name is mimicgen-pipe's <backend>:<task>, which "
+    "mimicgen-pipe's envs.make_env(backend, task, robot) rebuilds; robomimic cannot "
+    "build it (train with rollouts off)"
+)
 
 
 def obs_name(key: str, arms: Sequence[str] = ()) -> str:
@@ -110,14 +127,26 @@ def object_keys(obs_keys: Sequence[str]) -> list[str]:
     return [k for k in obs_keys if not is_robot_key(k)]
 
 
+def robosuite_quat(key: str, value: np.ndarray) -> np.ndarray:
+    """``value`` of our observation ``key`` in robosuite's convention: a quaternion's
+    (observations.is_quat_key) components reordered from ours (observations.QUAT_ORDER,
+    wxyz) to QUAT_ORDER (xyzw); any other key's as it is."""
+    value = np.asarray(value)
+    if not is_quat_key(key) or value.shape[-1:] != (4,):
+        return value
+    return value[..., [OUR_QUAT_ORDER.index(c) for c in QUAT_ORDER]]
+
+
 def robomimic_obs(
     obs: Mapping[str, np.ndarray], obs_keys: Sequence[str], arms: Sequence[str] = ()
 ) -> dict[str, np.ndarray]:
     """The export's ``obs/`` arrays of T steps from ours (key -> (T, ...) array): every key
-    by its :func:`obs_name`, and ``object``, :func:`object_keys` of ``obs_keys`` flattened and
-    concatenated, float32 (T, D) (absent when there are none)."""
-    out = {obs_name(k, arms): np.asarray(v) for k, v in obs.items()}
-    parts = [np.asarray(obs[k]).reshape(len(obs[k]), -1) for k in object_keys(obs_keys)]
+    by its :func:`obs_name`, quaternions xyzw (:func:`robosuite_quat`), and ``object``,
+    :func:`object_keys` of ``obs_keys`` flattened and concatenated, float32 (T, D) (absent
+    when there are none)."""
+    obs = {k: robosuite_quat(k, v) for k, v in obs.items()}
+    out = {obs_name(k, arms): v for k, v in obs.items()}
+    parts = [obs[k].reshape(len(obs[k]), -1) for k in object_keys(obs_keys)]
     if parts:
         out[OBJECT_KEY] = np.concatenate(parts, axis=1).astype(np.float32)
     return out
@@ -164,12 +193,13 @@ def _write_images(g: h5py.Group, key: str, images: np.ndarray) -> int:
 
 
 def env_args(store: EpisodeStore, info) -> dict:
-    """``data.attrs["env_args"]``: the export's (exporters.ExportInfo.env_args), with a store
+    """``data.attrs["env_args"]``: the export's (exporters.ExportInfo.env_args: robomimic's
+    env_meta fields env_name, type, env_kwargs) with ``note`` (ENV_NOTE), with a store
     of images its cameras as robomimic's env_meta names them in ``env_kwargs``:
     ``camera_names`` (robosuite's names, their images ``obs/<name>_image``), and
     ``camera_heights``, ``camera_widths`` [px] (one number for cameras of one size, as
     robomimic writes them, else one per camera)."""
-    args = dict(info.env_args)
+    args = dict(info.env_args, note=ENV_NOTE)
     cameras = store_cameras(store.attrs)
     if cameras:
         heights, widths = ([size[i] for size in cameras.values()] for i in (0, 1))
@@ -263,6 +293,7 @@ def _write_data_attrs(data: h5py.Group, store: EpisodeStore, info, labelled: boo
     data.attrs["total"] = int(store.episode_ends[-1])
     data.attrs["env_args"] = json.dumps(env_args(store, info))
     data.attrs["object_keys"] = json.dumps(object_keys(info.obs_keys))
+    data.attrs[PROVENANCE_KEY] = json.dumps(provenance(store.attrs, QUAT_ORDER))
     if labelled:
         data.attrs["subtasks"] = json.dumps([sub.name for sub in info.subtasks])
     if info.arms:

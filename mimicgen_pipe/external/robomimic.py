@@ -2,7 +2,8 @@
 robomimic export: its inputs are the export's ``obs/<key>`` names, MimicGen's
 (``robot0_eef_pos``, ``object``, ``agentview_image``, ``robot0_eye_in_hand_image``, ...: the
 exporter's own ``robomimic_obs``); a checkpoint trained on an export written before those
-names, on our own keys (``eef_pos``, ``eye_in_hand_image``), is given them too.
+names, on our own keys (``eef_pos``, ``eye_in_hand_image``), is given them too. Quaternions
+are given xyzw, as the export writes them (exports before that wrote wxyz).
 
 The server loads it with ``torch.load(weights_only=True)``, which rebuilds tensors,
 numbers, strings, lists and dicts alone (robomimic's checkpoints hold nothing else), and

@@ -59,7 +59,8 @@ def build_report(
     settings = method_settings(params)
     return [
         *method.intro_blocks(task, paper_task, settings),
-        *method.dgr_blocks(params, paper_task, settings, ms, paper),
+        *method.source_file_blocks(params, ms),
+        *method.dgr_blocks(params, spec, settings, ms, paper),
         *method.policy_blocks(params, paper_task, ms, paper),
         *curve_blocks(task, curves),
         *method.coverage_blocks(params, paper_task, ms, paper, heatmaps),

@@ -9,7 +9,16 @@ from typing import Any
 
 from mimicgen_pipe.metrics import Metrics
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
-from mimicgen_pipe.report.fmt import MISSING, dgr_stderr, fmt, fmt_delta, fmt_pm, fmt_setting
+from mimicgen_pipe.report.fmt import (
+    MISSING,
+    dgr_counts,
+    fmt,
+    fmt_ci,
+    fmt_delta,
+    fmt_dgr,
+    fmt_pm,
+    fmt_setting,
+)
 from mimicgen_pipe.report.inputs import OTHER_RUN, Run, of_other_run, other_run_note
 from mimicgen_pipe.report.paper import METRIC_LABELS, PaperResults, paper_deltas
 from mimicgen_pipe.report.settings import changed_settings, method_settings
@@ -24,11 +33,12 @@ def ablation_blocks(
     heading: str = "Ablations",
     base_settings_are: str = "this run's",
 ) -> list[Block]:
-    """Every saved run of ``task`` (its params' task) against the one with ``settings``."""
-    blocks: list[Block] = [Heading(2, heading)]
+    """Every saved run of ``task`` (its params' task) against the one with ``settings``; no
+    section when none was saved (a pipeline that makes none, such as the quickstart)."""
     ablations = [r for r in ablations if r.params.task == task]
     if not ablations:
-        return blocks + [Text(f"No saved ablation runs ({MISSING}).")]
+        return []
+    blocks: list[Block] = [Heading(2, heading)]
     runs = [(r, method_settings(r.params)) for r in ablations]
     base = [(r, s) for r, s in runs if not changed_settings(settings, s)]
     if not base:
@@ -42,12 +52,14 @@ def ablation_blocks(
     blocks.append(
         Text(
             f"Each run against `{base_run.name}` ({base_settings_are} settings, same attempts). "
-            "Δ is in points of DGR; ± is the binomial standard error of one run's DGR, so a Δ "
-            "within about twice it is noise. The paper column gives the same change in the paper's "
-            "table for the same reset variant (its base → changed value), on the task the "
-            "table holds. Coverage is the joint support coverage (paper Q) of the kept scenes, "
-            "beside what as many uniformly spread scenes would cover: with a fixed number of "
-            "attempts a lower DGR keeps fewer scenes, which alone covers fewer bins."
+            "Δ is in points of DGR; brackets give each DGR's 95% confidence interval (Wilson "
+            "score interval of its successes of attempts): two runs whose intervals do not "
+            "overlap differ by more than seed noise. The paper column gives the same change in "
+            "the paper's table for the same reset variant (its base → changed value), on the "
+            "task the table holds. Coverage is the joint support coverage (paper Q) of the "
+            "kept scenes, beside what as many uniformly spread scenes would cover: with a "
+            "fixed number of attempts a lower DGR keeps fewer scenes, which alone covers "
+            "fewer bins."
         )
     )
     rows, marked = [], False
@@ -99,7 +111,6 @@ def _ablation_row(
     changed = changed_settings(base_settings, settings)
     if set(changed) == {"generate.seed"}:
         paper_cell = "spread over seeds: Table S.1, below"
-    se = dgr_stderr(gm)
     coverage = (
         f"{fmt(cm.get('support_coverage_joint'))} ({fmt(cm.get('uniform_support_coverage_joint'))})"
     )
@@ -108,7 +119,7 @@ def _ablation_row(
         ", ".join(fmt_setting(k, x) for k, x in changed.items()) or "(base)",
         str(v),
         fmt(gm.get("attempts")),
-        f"{fmt(gm.get('dgr'))} ± {fmt(se)}" if se is not None else fmt(gm.get("dgr")),
+        fmt_dgr(gm),
         "" if not changed else fmt_delta(bm and bm.get("dgr"), gm.get("dgr")),
         coverage + (f" {OTHER_RUN}" if other else ""),
         ""
@@ -135,14 +146,17 @@ def _seed_spread(
     variants = sorted({str(g.variant) for r, _ in seeds for g in _generated(r, task)})
     for v in variants:
         found = [r.metrics.one(stage="generate", task=task, variant=v) for r, _ in seeds]
-        dgr = [g.values["dgr"] for g in found if g is not None]
+        values = [g.values for g in found if g is not None]
+        dgr = [g["dgr"] for g in values]
         ref = paper.find(table="S.1", variant=v)
         rows.append(
             (
                 v,
                 ", ".join(str(s["generate.seed"]) for _, s in seeds),
-                ", ".join(fmt(d) for d in dgr),
-                fmt_pm(statistics.mean(dgr), statistics.stdev(dgr)) if len(dgr) >= 2 else MISSING,
+                ", ".join(fmt_dgr(g) for g in values),
+                fmt_pm(statistics.mean(dgr), statistics.stdev(dgr)) + fmt_ci(_pooled(values))
+                if len(dgr) >= 2
+                else MISSING,
                 f"{max(dgr) - min(dgr):.1f}" if dgr else MISSING,
                 "; ".join(e.cite() for e in ref) or "not in paper",
             )
@@ -154,6 +168,15 @@ def _seed_spread(
             tuple(rows),
         ),
     ]
+
+
+def _pooled(values: Sequence[Mapping[str, Any]]) -> tuple[int, int] | None:
+    """(successes, attempts) summed over generate runs of equal attempts, whose pooled DGR is
+    then their mean DGR; None otherwise (a mean of unequal runs has no one count)."""
+    counts = [dgr_counts(g) for g in values]
+    if None in counts or len({n for _, n in counts}) != 1:
+        return None
+    return sum(k for k, _ in counts), sum(n for _, n in counts)
 
 
 def suite_ablation_blocks(

@@ -8,7 +8,15 @@ from typing import Any
 
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Image, Table, Text
-from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_pm, fmt_setting
+from mimicgen_pipe.report.fmt import (
+    CI_NOTE,
+    MISSING,
+    fmt,
+    fmt_dgr,
+    fmt_failures,
+    fmt_setting,
+    fmt_sr,
+)
 from mimicgen_pipe.report.inputs import (
     OTHER_RUN,
     MetricsSet,
@@ -18,9 +26,11 @@ from mimicgen_pipe.report.inputs import (
     of_other_run,
     other_run_note,
     policy_data,
+    trained,
 )
 from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.report.settings import matches
+from mimicgen_pipe.taskspec import TaskSpec
 
 
 def intro_blocks(task: str, paper_task: str, settings: Mapping[str, Any]) -> list[Block]:
@@ -32,21 +42,38 @@ def intro_blocks(task: str, paper_task: str, settings: Mapping[str, Any]) -> lis
             f"ours from the metrics files of this run. `{MISSING}` marks a metric this run "
             "did not produce. Generation settings: "
             + ", ".join(f"`{fmt_setting(k, v)}`" for k, v in settings.items())
-            + "."
+            + ". "
+            + CI_NOTE
         ),
+    ]
+
+
+def source_file_blocks(params: Params, ms: MetricsSet) -> list[Block]:
+    """A sentence naming the file the main task's source demos were brought in from, with
+    its sha256, as the source stage's metrics record them (source.from_file); none for the
+    demonstrator's demos."""
+    found = ms.find(stage="source", task=params.task, backend=params.backend)
+    return [
+        Text(
+            f"Source demos brought in from `{m.values['source_file']}` (sha256 "
+            f"`{m.values.get('source_file_sha256', MISSING)}`)."
+        )
+        for m in found
+        if "source_file" in m.values
     ]
 
 
 def dgr_blocks(
     params: Params,
-    paper_task: str,
+    spec: TaskSpec,
     settings: Mapping[str, Any],
     ms: MetricsSet,
     paper: PaperResults,
 ) -> list[Block]:
-    """Per variant the DGR of the generate run policies train on, beside the paper's
-    (Table O.1, its settings) and the paper's run with ``settings`` (this run's) where one
-    of its tables has it."""
+    """Per variant the DGR of the generate run policies train on, with its task failures per
+    subtask of ``spec`` (the main task's), beside the paper's (Table O.1, its settings) and
+    the paper's run with ``settings`` (this run's) where one of its tables has it."""
+    paper_task = spec.paper_task
     rows = []
     for v in params.generate.variants:
         g = policy_data(ms, params, params.task, params.backend, v)
@@ -62,13 +89,14 @@ def dgr_blocks(
                 v,
                 fmt(gv.get("attempts")),
                 fmt(gv.get("successes")),
-                fmt(gv.get("dgr")),
+                fmt_dgr(gv),
+                fmt_failures(spec, gv) if g else MISSING,
                 "; ".join(e.cite() for e in headline) or "not in paper",
                 "; ".join(f"{e.cite()} [{e.condition}]" for e in same) or "not in paper",
             )
         )
-    columns = ("variant", "attempts", "successes", "DGR ours", "paper (its settings)",
-               "paper with our settings")  # fmt: skip
+    columns = ("variant", "attempts", "successes", "DGR ours", "task failures per subtask",
+               "paper (its settings)", "paper with our settings")  # fmt: skip
     blocks: list[Block] = [
         Heading(2, "Data generation rate (DGR, %)"),
         Table(columns, tuple(rows)),
@@ -89,11 +117,17 @@ def dgr_blocks(
 def policy_blocks(
     params: Params, paper_task: str, ms: MetricsSet, paper: PaperResults
 ) -> list[Block]:
-    """Success rates of the policies evaluated: the paper's P.1 rows first (missing where
-    ours are), then every other evaluation present."""
-    task, backend = params.task, params.backend
+    """Success rates of the policies evaluated: the paper's P.1 rows of the variants
+    generated first (missing where ours are), then every other evaluation present. None
+    where the pipeline trained and evaluated no policy of the task (a pipeline without
+    those stages, such as one that only generates)."""
+    task, backend, variants = params.task, params.backend, params.generate.variants
+    if not trained(ms, params) and not evaluated(ms, params):
+        return []
     expected = [
-        (e.data, e.variant) for e in paper.find(table="P.1", task=paper_task) if e.data is not None
+        (e.data, e.variant)
+        for e in paper.find(table="P.1", task=paper_task)
+        if e.data in ("source", *variants) and e.variant in variants
     ]
     rows, marked = [], False
     for data, v in dict.fromkeys(expected + evaluated(ms, params)):
@@ -109,8 +143,8 @@ def policy_blocks(
                 ("source demos" if data == "source" else f"generated {data}")
                 + (f" {OTHER_RUN}" if other else ""),
                 v,
-                fmt_pm(evv.get("success_rate_max"), evv.get("success_rate_max_std")),
-                fmt_pm(evv.get("success_rate_last"), evv.get("success_rate_last_std")),
+                fmt_sr(evv, "max"),
+                fmt_sr(evv, "last"),
                 f"{fmt(evv.get('episodes'))} × {fmt(evv.get('seeds'))}" if ev else MISSING,
                 "; ".join(e.cite() for e in ref) or "not in paper",
             )

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from mimicgen_pipe.metrics import Metrics
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
-from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_pm
+from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_sr
 from mimicgen_pipe.report.inputs import MetricsSet, evaluation
 from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.taskspec import TaskSpec
@@ -31,13 +31,14 @@ def _robomimic(ms: MetricsSet, task: str, obs: str) -> Metrics | None:
 
 
 def _max_at(m: Metrics | None) -> str:
-    """Success max over checkpoints [%], with the epoch of the best, and the last."""
+    """Success max over checkpoints [%], with the epoch of the best, and the last, each with
+    its 95% interval."""
     if m is None:
         return MISSING
     v = m.values
     return (
-        f"{fmt(v.get('success_rate_max'))} (epoch {fmt(v.get('seed0_best_epoch'))}) / "
-        f"{fmt(v.get('success_rate_last'))}"
+        f"{fmt_sr(v, 'max', std=False)} (epoch {fmt(v.get('seed0_best_epoch'))}) / "
+        f"{fmt_sr(v, 'last', std=False)}"
     )
 
 
@@ -59,18 +60,8 @@ def outside_learner_blocks(
         ours = evaluation(ms, params, spec.name, params.suite.backend, "D0", "D0")
         v = ours.values if ours else {}
         seeds = v.get("seeds") or 1
-        mean = (
-            f"; {fmt_pm(v.get('success_rate_max'), v.get('success_rate_max_std'))} over "
-            f"{seeds} seeds"
-            if seeds > 1
-            else ""
-        )
-        own = (
-            f"{fmt(v.get('seed0_success_rate_max'))} / {fmt(v.get('seed0_success_rate_last'))}"
-            f"{mean}"
-            if ours
-            else MISSING
-        )
+        mean = f"; {fmt_sr(v, 'max')} over {seeds} seeds" if seeds > 1 else ""
+        own = f"{fmt_sr(v, 'max', seed=0)} / {fmt_sr(v, 'last', seed=0)}{mean}" if ours else MISSING
         ref = paper.find(table="P.1", task=spec.paper_task, data="D0", variant="D0")
         rows.append(
             (

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
-from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_pm
+from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_sr
 from mimicgen_pipe.report.inputs import MetricsSet, read_metrics_folder
 from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.taskspec import TaskSpec
@@ -80,8 +80,8 @@ def profile_blocks(
                 fmt(seeds, 0),
                 fmt(v.get("checkpoints"), 0),
                 fmt(v.get("horizon"), 0),
-                fmt_pm(v.get("success_rate_max"), v.get("success_rate_max_std")),
-                fmt_pm(v.get("success_rate_last"), v.get("success_rate_last_std")),
+                fmt_sr(v, "max"),
+                fmt_sr(v, "last"),
                 "; ".join(e.cite() for e in ref) or "–",
             )
         )

@@ -11,7 +11,7 @@ from mimicgen_pipe.metrics import Metrics
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Image, Table, Text
 from mimicgen_pipe.report.curves import figure
-from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_pm
+from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_dgr, fmt_sr
 from mimicgen_pipe.report.inputs import (
     OTHER_RUN,
     MetricsSet,
@@ -96,15 +96,14 @@ def scaling_blocks(params: Params, ms: MetricsSet, figures: dict[str, bytes]) ->
             (
                 str(n),
                 episodes,
-                fmt_pm(v.get("success_rate_max"), v.get("success_rate_max_std"))
-                + (f" {OTHER_RUN}" if other else ""),
-                fmt_pm(v.get("success_rate_last"), v.get("success_rate_last_std")),
+                fmt_sr(v, "max") + (f" {OTHER_RUN}" if other else ""),
+                fmt_sr(v, "last"),
                 fmt(v.get("seeds")) if ev is not None else MISSING,
             )
         )
     made = (
         f"the first N of {store.values['successes']} demos kept of "
-        f"{store.values['attempts']} attempts (DGR {fmt(store.values['dgr'])} %)"
+        f"{store.values['attempts']} attempts (DGR {fmt_dgr(store.values)} %)"
         if store is not None
         else f"the first N demos of one store ({MISSING})"
     )

@@ -9,7 +9,15 @@ from typing import Any
 from mimicgen_pipe.metrics import Metrics
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
-from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_delta, fmt_pm
+from mimicgen_pipe.report.fmt import (
+    CI_NOTE,
+    MISSING,
+    fmt,
+    fmt_delta,
+    fmt_dgr,
+    fmt_failures,
+    fmt_sr,
+)
 from mimicgen_pipe.report.inputs import (
     OTHER_RUN,
     MetricsSet,
@@ -30,7 +38,7 @@ def intro_blocks(specs: Sequence[TaskSpec]) -> list[Block]:
             f"Tasks, each beside the paper's task it stands for: {tasks}. Paper numbers come "
             "from `reference/paper_results.yaml`, each with the table it was read from; ours "
             f"from the suite's metrics files (`suite/dvc.yaml`). `{MISSING}` marks a metric "
-            "the suite did not produce."
+            f"the suite did not produce. {CI_NOTE}"
         ),
     ]
 
@@ -47,13 +55,9 @@ def dgr_run(ms: MetricsSet, params: Params, task: str, variant: str) -> Metrics 
     )
 
 
-def _arm_of(spec: TaskSpec, subtask) -> str:
-    """``<arm>: `` before a subtask of a task with several arms; nothing for one arm."""
-    return f"{subtask.arm}: " if spec.several_arms else ""
-
-
 def _kept(m: Mapping[str, Any]) -> str:
-    return f"{fmt(m['dgr'])} ({m['successes']}/{m['attempts']})"
+    """A DGR with its 95% interval and the counts it is of."""
+    return f"{fmt_dgr(m)} ({m['successes']}/{m['attempts']})"
 
 
 def suite_dgr_blocks(
@@ -73,10 +77,7 @@ def suite_dgr_blocks(
             else:
                 m = g.values
                 ours = _kept(m)
-                failures = ", ".join(
-                    f"{_arm_of(spec, s)}{s.name} {m.get(f'failures_{s.name}', 0)}"
-                    for s in spec.subtasks
-                )
+                failures = fmt_failures(spec, m)
                 per_attempt = (
                     f"{fmt(m['seconds_per_attempt_mean'], 2)} s, "
                     f"{fmt(m['steps'] / max(1, m['attempts']), 0)} steps"
@@ -217,10 +218,8 @@ def suite_policy_blocks(
 
 def _rate(m: Metrics, kind: str) -> str:
     """Success rate ``kind`` (max or last over training); mean ± std over seeds where there
-    are several."""
-    v = m.values
-    std = v.get(f"success_rate_{kind}_std") if (v.get("seeds") or 1) > 1 else None
-    return fmt_pm(v.get(f"success_rate_{kind}"), std)
+    are several; with its 95% interval."""
+    return fmt_sr(m.values, kind, std=(m.values.get("seeds") or 1) > 1)
 
 
 def _count(n: Any, what: str) -> str:
@@ -254,8 +253,7 @@ def paper_geometry_rows(
     for v, ours in zip(("D0", "D1"), dgr, strict=True):
         ref = paper.find(table="O.1", task=spec.paper_task, variant=v, metric="dgr")
         cells.append(
-            f"{fmt(ours.values['dgr']) if ours else MISSING} / "
-            f"{fmt(ref[0].value) if ref else MISSING}"
+            f"{fmt_dgr(ours.values) if ours else MISSING} / {fmt(ref[0].value) if ref else MISSING}"
         )
     ref = paper.find(table="P.1", task=spec.paper_task, data="D0", variant="D0")
     target = ref[0].value - TARGET_MARGIN if ref else None
@@ -343,7 +341,7 @@ def long_task_blocks(
                 f"`{spec.name}` (ours)",
                 str(len(spec.subtasks)),
                 *(_kept(m.values) if m else MISSING for m in dgr),
-                *(fmt(m.values.get("success_rate_max")) if m else MISSING for m in sr),
+                *(fmt_sr(m.values, std=False) if m else MISSING for m in sr),
             )
         )
     for task, subtasks in PAPER_LONG_TASKS.items():

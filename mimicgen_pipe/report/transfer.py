@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from mimicgen_pipe.metrics import Metrics
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
-from mimicgen_pipe.report.fmt import MISSING, fmt
+from mimicgen_pipe.report.fmt import CI_NOTE, MISSING, fmt, fmt_dgr
 from mimicgen_pipe.report.inputs import MetricsSet, evaluation
 from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.report.suite import (
@@ -48,7 +48,7 @@ def transfer_table(
                 cells.append(
                     MISSING
                     if m is None
-                    else f"{fmt(m.values['dgr'])} ({m.values.get('ik_failures', 0)}/"
+                    else f"{fmt_dgr(m.values)} ({m.values.get('ik_failures', 0)}/"
                     f"{m.values['attempts']} IK)"
                 )
             rows.append(tuple(cells))
@@ -67,6 +67,8 @@ def transfer_blocks(tables: Sequence[Table], paper: PaperResults) -> list[Block]
         for task, variants in by_task.items()
     )
     return [
+        Heading(1, "Robot transfer"),
+        Text(CI_NOTE),
         Heading(2, "Robot transfer: data generation rate per arm"),
         Text(
             "Source demos recorded with the Panda; each cell generated with the arm of its "

@@ -6,7 +6,7 @@ from __future__ import annotations
 from mimicgen_pipe.metrics import Metrics
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
-from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_delta
+from mimicgen_pipe.report.fmt import CI_NOTE, MISSING, fmt, fmt_delta, fmt_dgr, fmt_sr
 from mimicgen_pipe.report.inputs import MetricsSet
 
 WALL_TASK, WALL_VARIANT = "stack_cube_wall", "wall"  # the cell where a wall blocks the line
@@ -53,7 +53,7 @@ def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
         kept = [
             MISSING
             if m is None
-            else f"{fmt(m.values['dgr'])} ({m.values['successes']}/{m.values['attempts']})"
+            else f"{fmt_dgr(m.values)} ({m.values['successes']}/{m.values['attempts']})"
             for m in (lin, plan)
         ]
         steps = [
@@ -99,7 +99,7 @@ def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
             "way (D0); in its variant wall, the wall stands between the cubes. Planner "
             "failures: attempts stopped because no path was found, apart from task "
             f"failures. Seconds and steps per attempt over all attempts. `{MISSING}` marks a "
-            "run the pipeline did not produce."
+            f"run the pipeline did not produce. {CI_NOTE}"
         ),
         table,
         *policy_blocks(params, ms),
@@ -119,8 +119,8 @@ def policy_blocks(params: Params, ms: MetricsSet) -> list[Block]:
             (
                 transit,
                 MISSING if g is None else f"{g['successes']} of {g['attempts']} attempts",
-                MISSING if e is None else fmt(e["success_rate_max"]),
-                MISSING if e is None else fmt(e["success_rate_last"]),
+                fmt_sr(e, "max", std=False),
+                fmt_sr(e, "last", std=False),
             )
         )
     n = params.planned_transit.policy_demos

@@ -1,7 +1,8 @@
 """Load an exported dataset with lerobot's LeRobotDataset
 (offline) and compare every frame with the arrays in EXPECTED.npz, camera images (decoded from
-the videos), subtask labels and next.reward, next.done, next.success included, and each
-video feature's camera calibration with calibration/<video key>/{intrinsics,pose}. With
+the videos), subtask labels and next.reward, next.done, next.success included, each
+video feature's camera calibration with calibration/<video key>/{intrinsics,pose}, info.json's
+"mimicgen_pipe" with the JSON of provenance, and README.md as a Hugging Face dataset card. With
 --policies, also build lerobot's ACT and Diffusion configs from the dataset's features, as
 lerobot-train does, and run their feature checks. Prints "ok" when all match.
 
@@ -16,7 +17,11 @@ import sys
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")  # a missing file fails at once, never downloads
 
+import json  # noqa: E402
+from pathlib import Path  # noqa: E402
+
 import numpy as np  # noqa: E402
+from huggingface_hub import DatasetCard  # noqa: E402
 from lerobot.datasets.lerobot_dataset import CODEBASE_VERSION, LeRobotDataset  # noqa: E402
 
 MAX_IMAGE_ERROR = 12.0  # mean absolute error of a decoded frame, 0..255 (AV1 at crf 30)
@@ -62,7 +67,14 @@ for key, dtype in (("next.reward", "float32"), ("next.done", "bool"), ("next.suc
     assert (feature["dtype"], list(feature["shape"])) == (dtype, [1]), (key, feature)
 subtasks = expected["subtasks"].tolist()
 assert ds.meta.subtasks.index.tolist() == subtasks, ds.meta.subtasks
+# what made the data and its conventions (info.json's "mimicgen_pipe"), and the dataset
+# card as the Hugging Face Hub reads it
+assert ds.meta.info["mimicgen_pipe"] == json.loads(str(expected["provenance"]))
+card = DatasetCard.load(Path(root) / "README.md")
+assert card.data.task_categories == ["robotics"] and "LeRobot" in card.data.tags, card.data
+assert card.data.configs == [{"config_name": "default", "data_files": "data/*/*.parquet"}]
 task = str(expected["task"])
+assert task in card.text, card.text
 starts = np.concatenate([[0], np.cumsum(expected["lengths"])[:-1]])
 same: dict[str, list] = {key: [] for key in ds.meta.video_keys}  # error to our frame
 shifted: dict[str, list] = {key: [] for key in ds.meta.video_keys}  # to the ones beside it

@@ -1,7 +1,10 @@
-"""drawer_cleanup (ManiSkill StackPyramid-v1's three cubes and a cabinet with a drawer; no
+"""drawer_cleanup: ManiSkill's StackPyramid-v1 three cubes and a cabinet with a drawer; no
 paper task: it stands for the paper's long tasks with a drawer, Coffee Preparation and Mug
-Cleanup): open the drawer, grasp the red cube A, put it in the drawer, close the drawer, grasp
-the green cube B, stack it on the blue cube C. Six subtasks, each relative to one object; the
+Cleanup.
+
+**Task Description:**
+Open the drawer, grasp the red cube A, put it in the drawer, close the drawer, grasp the
+green cube B, stack it on the blue cube C. Six subtasks, each relative to one object; the
 three drawer subtasks to the drawer.
 
 The cabinet is an articulation built here from boxes: a fixed body 16 cm wide, 15 cm deep
@@ -11,16 +14,39 @@ bar handle on its front. The task object ``drawer`` is the drawer's link: its fr
 cabinet's at the joint's zero (the front face's centre at table level, x into the cabinet),
 and moves out along its -x as the drawer opens.
 
-Reset variants (world frame; the table centre is the origin, the Panda base at x = -0.615);
-the drawer is closed, the cabinet's front faces the robot, turned by the drawer's yaw about
-world z (yaw 0: opening towards -x); the cubes lie right of the cabinet (y < 0), at least 8 cm
-apart, their yaw uniform:
+**Randomizations:**
+World frame: the table centre is the origin, the Panda base at x = -0.615 m; positions in
+metres, yaw about world z in radians. The drawer is closed, the cabinet's front faces the
+robot, turned by the drawer's yaw (yaw 0: opening towards -x); the cubes lie right of the
+cabinet (y < 0), their yaw uniform over a full turn. In every variant the object centres
+are at least 0.08 m apart and at most 0.76 m horizontally from the Panda's base (its
+top-down reach; D0's boxes lie within it).
 - D0 (the source demos'): the cabinet at x in [0.0, 0.05], y in [0.18, 0.22], yaw in
   [-0.1, 0.1]; each cube in x in [-0.12, 0.08], y in [-0.25, -0.02].
 - D1: the cabinet at x in [-0.05, 0.1], y in [0.16, 0.26], yaw in [-0.3, 0.3]; each cube in
   x in [-0.2, 0.15], y in [-0.3, -0.02].
 - D2: the cabinet at x in [-0.1, 0.15], y in [0.15, 0.3], yaw in [-0.5, 0.5]; each cube in
-  x in [-0.3, 0.2], y in [-0.35, -0.02] (cut by the Panda's top-down reach).
+  x in [-0.3, 0.2], y in [-0.35, -0.02].
+
+**Success Conditions:**
+The task's own (its env reports it):
+- the drawer is shut (open by at most 1 cm) and not grasped;
+- cube A is inside the drawer's tray and not grasped;
+- cube B is on cube C (centres within the cubes' half diagonal + 5 mm, 3.3 cm, in xy and
+  4 cm +- 5 mm apart in z), static (below 1 cm/s and 0.5 rad/s) and not grasped.
+
+**Subtasks:**
+A drawer signal also needs the handle let go and the TCP at least 5 cm from its centre.
+- ``open_drawer``, reference ``drawer``: ends when ``drawer_open`` turns true: the drawer
+  open by 8 cm or more.
+- ``grasp_cubeA``, reference ``cubeA``: ends when ``grasp_cubeA`` (the agent's
+  ``is_grasping``) turns true.
+- ``place_in_drawer``, reference ``drawer``: ends when ``cubeA_in_drawer`` turns true: A's
+  centre inside the tray, A released.
+- ``close_drawer``, reference ``drawer``: ends when ``drawer_closed`` turns true: the drawer
+  open by at most 1 cm.
+- ``grasp_cubeB``, reference ``cubeB``: ends when ``grasp_cubeB`` turns true.
+- ``place_on_cubeC``, reference ``cubeC``: ends with the demo.
 """
 
 from __future__ import annotations

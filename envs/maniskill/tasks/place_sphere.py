@@ -1,6 +1,7 @@
-"""place_sphere (ManiSkill PlaceSphere-v1; paper: Pick Place): grasp a 2 cm-radius sphere
-and place it in a small square bin (4 cm inside). The grasp signal is ManiSkill's own
-``is_obj_grasped``.
+"""place_sphere: ManiSkill's PlaceSphere-v1; the paper's Pick Place.
+
+**Task Description:**
+Grasp a 2 cm-radius sphere and place it in a small square bin (4 cm inside).
 
 Source demos come from our own planner (``solve``), not ManiSkill's solution for the task:
 that one takes the grasp from the sphere's oriented bounding box, whose axes are arbitrary
@@ -9,13 +10,25 @@ differences from one process to the next, which flipped the closing direction an
 seed 18 a 105-, 125- or 134-step plan. A sphere can be grasped at any yaw, so ``solve``
 closes along the hand's own horizontal axis.
 
-Reset variants (world frame; the table centre is the origin, the Panda base at x = -0.615;
-the sphere's yaw means nothing and stays 0):
+**Randomizations:**
+World frame: the table centre is the origin, the Panda base at x = -0.615 m; positions in
+metres; the sphere's yaw means nothing and stays 0.
 - D0: ManiSkill's own: the sphere in x in [-0.1, -0.05], y in [-0.1, 0.1]; the bin in
   x in [0.0, 0.1], y in [-0.1, 0.1], yaw 0.
 - D1: the sphere in x in [-0.2, -0.05], y in [-0.2, 0.2]; the bin in x in [0.0, 0.15],
-  y in [-0.2, 0.2], yaw 0.
-- D2: D1 with the bin's yaw in +-45 deg.
+  y in [-0.2, 0.2], yaw 0; centres at least 0.08 m apart.
+- D2: D1 with the bin's yaw in +-45 deg (+-pi/4 rad).
+
+**Success Conditions:**
+ManiSkill's:
+- the sphere rests in the bin: centres within 5 mm in xy, and the sphere's centre its
+  radius + half the bin floor's thickness (2.25 cm) above the bin's, +- 5 mm;
+- the sphere is static (below 1 cm/s and 0.5 rad/s) and not grasped.
+
+**Subtasks:**
+- ``grasp_sphere``, reference ``sphere``: ends when ``grasp_sphere`` (ManiSkill's
+  ``is_obj_grasped``) turns true.
+- ``place_in_bin``, reference ``bin``: ends with the demo.
 """
 
 from __future__ import annotations

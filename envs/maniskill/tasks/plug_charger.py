@@ -1,18 +1,31 @@
-"""plug_charger (ManiSkill PlugCharger-v1; paper: Coffee): grasp the charger and plug its
-two pins into the wall receptacle, 0.5 mm of clearance a side. ManiSkill's evaluate() has
-no grasp signal; the agent's ``is_grasping(charger)`` is the first subtask's.
+"""plug_charger: ManiSkill's PlugCharger-v1; the paper's Coffee.
+
+**Task Description:**
+Grasp the charger and plug its two pins into the wall receptacle, 0.5 mm of clearance a
+side.
 
 Generation runs without action noise (max_action_noise 0): the clearance does not take it.
 On D0 (40 attempts each, the same source demos) sigma 0.025 keeps 10 %, 0.01 17.5 %,
 0.005 25 % and 0 65 %; every extra failure is a jammed plug-in, none a missed grasp.
 
-Reset variants (world frame; the table centre is the origin, the Panda base at x = -0.615):
+**Randomizations:**
+World frame: the table centre is the origin, the Panda base at x = -0.615 m; positions in
+metres, yaw about world z in degrees. The goal pose follows the receptacle.
 - D0: ManiSkill's own: the charger in x in [-0.1, -0.026], y in [-0.2, 0.2], yaw +-60 deg;
   the receptacle (10 cm above the table) in x in [0.01, 0.1], y in [-0.1, 0.1], yaw
   180 +- 22.5 deg.
 - D1: the charger in x in [-0.2, -0.03], y in [-0.25, 0.25], yaw +-90 deg; the receptacle
-  in x in [0.0, 0.12], y in [-0.15, 0.15], yaw as D0.
+  in x in [0.0, 0.12], y in [-0.15, 0.15], yaw as D0; centres at least 0.08 m apart.
 - D2: D1 with the receptacle's yaw 180 +- 45 deg.
+
+**Success Conditions:**
+ManiSkill's: the charger within 5 mm and 0.2 rad of the goal pose (the receptacle's pose
+turned half a turn about its z axis).
+
+**Subtasks:**
+- ``grasp_charger``, reference ``charger``: ends when ``grasp_charger`` (the agent's
+  ``is_grasping(charger)``; ManiSkill's evaluate() has no grasp signal) turns true.
+- ``plug_in``, reference ``receptacle``: ends with the demo.
 """
 
 from __future__ import annotations

@@ -1,14 +1,25 @@
-"""pull_cube_tool (ManiSkill PullCubeTool-v1; paper: Hammer Cleanup, tool use): grasp the
-L-shaped tool (20 cm handle, 5 cm hook), reach behind the 4 cm cube with the hook and pull
-the cube to within 0.6 m of the robot base. ManiSkill's evaluate() has no grasp signal; the
-agent's ``is_grasping(tool)`` is the first subtask's.
+"""pull_cube_tool: ManiSkill's PullCubeTool-v1; the paper's Hammer Cleanup (tool use).
 
-Reset variants (world frame; the table centre is the origin, the Panda base at x = -0.615):
+**Task Description:**
+Grasp the L-shaped tool (20 cm handle, 5 cm hook), reach behind the 4 cm cube with the hook
+and pull the cube towards the robot.
+
+**Randomizations:**
+World frame: the table centre is the origin, the Panda base at x = -0.615 m; positions in
+metres, yaw about world z in degrees.
 - D0: ManiSkill's own: the tool in x, y in [-0.3, -0.1], yaw 0; the cube in x in
   [0.05, 0.25], y in [-0.25, 0.05], yaw in +-30 deg.
 - D1: the tool in x in [-0.35, -0.05], y in [-0.35, 0.0], yaw in +-30 deg; the cube in
-  x in [0.05, 0.3], y in [-0.3, 0.1], yaw in +-45 deg.
+  x in [0.05, 0.3], y in [-0.3, 0.1], yaw in +-45 deg; centres at least 0.1 m apart.
 - D2: D1 with the tool's yaw in +-60 deg and the cube's in +-60 deg.
+
+**Success Conditions:**
+ManiSkill's: the cube's centre less than 0.6 m from the robot base in xy.
+
+**Subtasks:**
+- ``grasp_tool``, reference ``tool``: ends when ``grasp_tool`` (the agent's
+  ``is_grasping(tool)``; ManiSkill's evaluate() has no grasp signal) turns true.
+- ``pull_cube``, reference ``cube``: ends with the demo.
 """
 
 from __future__ import annotations

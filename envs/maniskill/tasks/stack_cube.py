@@ -1,14 +1,30 @@
-"""stack_cube (ManiSkill StackCube-v1; paper: Stack): grasp the red cube A, place it on the
-green cube B. Cubes are 4 cm.
+"""stack_cube: ManiSkill's StackCube-v1; the paper's Stack.
 
-Reset variants (world frame; the table centre is the origin, the Panda base is at x=-0.615):
-- D0: ManiSkill's own distribution: a shared centre uniform in [-0.1, 0.1]^2 plus, per cube,
-  a non-overlapping offset in [-0.1, 0.1] x [-0.2, 0.2]: each cube lies in x in [-0.2, 0.2],
-  y in [-0.3, 0.3], concentrated near the centre; yaw uniform.
+**Task Description:**
+Grasp the red cube A and place it on the green cube B, then let go. Cubes are 4 cm.
+
+**Randomizations:**
+World frame: the table centre is the origin, the Panda base at x = -0.615 m; positions in
+metres; each cube's yaw about world z uniform over a full turn.
+- D0: ManiSkill's own distribution: a shared centre uniform in [-0.1, 0.1]^2 plus, per
+  cube, a non-overlapping offset in [-0.1, 0.1] x [-0.2, 0.2]: each cube lies in x in
+  [-0.2, 0.2], y in [-0.3, 0.3], concentrated near the centre.
 - D1: each cube independently uniform over x in [-0.35, 0.1], y in [-0.35, 0.35], cut by the
   Panda's top-down reach (at most 0.76 m horizontally from the base) and redrawn where the
-  cubes would overlap (centres >= 0.06 m apart); yaw uniform. Spread per axis is ~1.4x D0's
-  and the two cubes are independent.
+  cubes would overlap (centres >= 0.06 m apart). Spread per axis is ~1.4x D0's and the two
+  cubes are independent.
+
+**Success Conditions:**
+ManiSkill's:
+- cube A is on cube B: centres within the cubes' half diagonal + 5 mm (3.3 cm) in xy and
+  4 cm +- 5 mm apart in z;
+- cube A is static (below 1 cm/s and 0.5 rad/s);
+- cube A is not grasped.
+
+**Subtasks:**
+- ``grasp_cubeA``, reference ``cubeA``: ends when ``grasp_cubeA`` (ManiSkill's
+  ``is_cubeA_grasped``) turns true.
+- ``place_on_cubeB``, reference ``cubeB``: ends with the demo.
 """
 
 from __future__ import annotations

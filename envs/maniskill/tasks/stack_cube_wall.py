@@ -1,19 +1,36 @@
-"""stack_cube_wall (ManiSkill StackCube-v1 with a wall; no paper task): stack_cube's task,
-grasp the red cube A and place it on the green cube B, in a scene with a wall that the
-variant ``wall`` stands between the cubes. A task for planned transit
+"""stack_cube_wall: ManiSkill's StackCube-v1 with a wall; no paper task (the paper's Stack
+with an obstacle).
+
+**Task Description:**
+stack_cube's task, grasp the red cube A and place it on the green cube B, in a scene with a
+wall that the variant ``wall`` stands between the cubes. A task for planned transit
 (generate.transit: planned): the straight interpolation and the source demos' own motion,
 moved with cube B, pass through the wall; a planned transit goes over it.
 
 The wall is a kinematic box 40 cm long, 2 cm thick and 14 cm tall, a task object like the
 cubes (its pose is recorded and observed) that no subtask refers to.
 
-Reset variants (world frame; the table centre is the origin, the Panda base at x = -0.615);
-the cubes' yaw is uniform, cube A lies on the right (y < 0), cube B on the left:
+**Randomizations:**
+World frame: the table centre is the origin, the Panda base at x = -0.615 m; positions in
+metres, yaw about world z. Every object uniform in its box, with no distance or reach cut;
+the cubes' yaw uniform over a full turn, cube A on the right (y < 0), cube B on the left:
 - D0 (the source demos'): cube A in x in [-0.15, 0.1], y in [-0.25, -0.1]; cube B in
   x in [-0.15, 0.1], y in [0.1, 0.25]; the wall out of the way, across the far end of the
-  table (its centre in x in [0.37, 0.38], y in [-0.005, 0.005], along y).
-- wall: D0's cubes, the wall between them along x, its centre in x in [-0.1, 0.0],
-  y in [-0.005, 0.005].
+  table (its centre in x in [0.37, 0.38], y in [-0.005, 0.005], yaw pi/2 rad: along y).
+- wall: D0's cubes, the wall between them, its centre in x in [-0.1, 0.0],
+  y in [-0.005, 0.005], yaw 0: along x.
+
+**Success Conditions:**
+stack_cube's (ManiSkill's StackCube-v1 test), reported by the task's own env:
+- cube A is on cube B: centres within the cubes' half diagonal + 5 mm (3.3 cm) in xy and
+  4 cm +- 5 mm apart in z;
+- cube A is static (below 1 cm/s and 0.5 rad/s);
+- cube A is not grasped.
+
+**Subtasks:**
+- ``grasp_cubeA``, reference ``cubeA``: ends when ``grasp_cubeA`` (ManiSkill's
+  ``is_cubeA_grasped``) turns true.
+- ``place_on_cubeB``, reference ``cubeB``: ends with the demo.
 """
 
 from __future__ import annotations

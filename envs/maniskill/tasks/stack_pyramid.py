@@ -1,5 +1,7 @@
-"""stack_pyramid (ManiSkill StackPyramid-v1; paper: Stack Three): grasp cube A, place it
-beside cube B, grasp cube C, place it on A and B. Cubes are 4 cm.
+"""stack_pyramid: ManiSkill's StackPyramid-v1; the paper's Stack Three.
+
+**Task Description:**
+Grasp cube A, place it beside cube B, grasp cube C, place it on A and B. Cubes are 4 cm.
 
 ManiSkill's own planner for this task pushes A towards B with a closed gripper (and skips
 the push where A starts within 7 cm of B), so its demos have no "grasp A" and their subtask
@@ -7,12 +9,29 @@ structure varies. This file's demonstrator (``solve``) grasps and places instead
 same planner primitives: A goes beside the face of B nearest to A's start, 3 mm from it
 and turned to B's yaw; C goes on the middle of the two.
 
-Reset variants (world frame; the table centre is the origin, the Panda base at x = -0.615):
+**Randomizations:**
+World frame: the table centre is the origin, the Panda base at x = -0.615 m; positions in
+metres; each cube's yaw about world z uniform over a full turn.
 - D0: ManiSkill's own: each cube's centre in x in [-0.1, 0.1], y in [-0.2, 0.2], apart by
-  at least 5.7 cm; yaw uniform.
-- D1: each cube in x in [-0.2, 0.15], y in [-0.3, 0.3], at least 8 cm apart; yaw uniform.
-- D2: each cube in x in [-0.3, 0.2], y in [-0.35, 0.35] (cut by the Panda's top-down
-  reach), at least 8 cm apart; yaw uniform.
+  at least 5.7 cm.
+- D1: each cube in x in [-0.2, 0.15], y in [-0.3, 0.3], centres at least 0.08 m apart, cut
+  by the Panda's top-down reach (at most 0.76 m horizontally from the base).
+- D2: each cube in x in [-0.3, 0.2], y in [-0.35, 0.35], at least 0.08 m apart and cut by
+  the reach as D1.
+
+**Success Conditions:**
+ManiSkill's:
+- A is next to B: centres within the cubes' diagonal + 5 mm (6.2 cm) in xy;
+- C is on top of A and of B: centres within 6.2 cm in xy, more than 2 cm apart in z;
+- A and C are static (below 1 cm/s and 0.5 rad/s) and not grasped.
+
+**Subtasks:**
+- ``grasp_cubeA``, reference ``cubeA``: ends when ``grasp_cubeA`` (the agent's
+  ``is_grasping``) turns true.
+- ``place_beside_cubeB``, reference ``cubeB``: ends when ``cubeA_beside_cubeB`` turns true:
+  A released, its centre within 6.2 cm of B's in xy and within 5 mm of B's height.
+- ``grasp_cubeC``, reference ``cubeC``: ends when ``grasp_cubeC`` turns true.
+- ``place_on_pyramid``, reference ``cubeB``: ends with the demo.
 """
 
 from __future__ import annotations

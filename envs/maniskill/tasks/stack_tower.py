@@ -1,25 +1,44 @@
-"""stack_tower (paper: Stack Three, robosuite's tower): grasp cube A, place it on cube B,
-grasp cube C, place it on A. It is set in ManiSkill's StackPyramid-v1 scene, with three 4 cm
-cubes. Robosuite's B is 5 cm; here it is 4 cm like the others.
+"""stack_tower: ManiSkill's StackPyramid-v1 scene; the paper's Stack Three (robosuite's
+tower).
 
-Success is ManiSkill's StackCube test applied twice. A must sit on B and C on A: the
-centres within the cubes' half diagonal + 5 mm in xy, and 4 cm ± 5 mm apart in z. Both must
-be released and static, static meaning below 3 cm/s here (StackCube's 1 cm/s is below what
-PhysX reports for cubes resting in a tower). Robosuite's test asks instead that A and C be
-lifted, released and touching the cube below. stack_pyramid, the same scene with
-ManiSkill's pyramid goal, stays the harder variant.
+**Task Description:**
+Grasp cube A, place it on cube B, grasp cube C, place it on A. It is set in ManiSkill's
+StackPyramid-v1 scene, with three 4 cm cubes. Robosuite's B is 5 cm; here it is 4 cm like
+the others.
 
 The demonstrator plans with stack_pyramid's grasp and place motions
 (envs/maniskill/tasks/stack_pyramid.py). A goes on B's centre, turned to B's yaw; C goes
 on A's.
 
-Reset variants, world frame (the table centre is the origin; the Panda base is at
-x = -0.615). Every cube is drawn with uniform yaw, and its centre at least 6 cm from the
-others. That is more than the 5.7 cm at which two 4 cm cubes could touch.
+**Randomizations:**
+World frame: the table centre is the origin, the Panda base at x = -0.615 m; positions in
+metres. ManiSkill's reset, then every cube redrawn: uniform in its box, its yaw about world
+z uniform over a full turn, its centre at least 0.06 m from the others (more than the
+5.7 cm at which two 4 cm cubes could touch) and at most 0.76 m horizontally from the Panda's
+base (its top-down reach; D0's box lies within it).
 - D0 (the paper's): each cube's centre in x, y in [-0.1, 0.1].
 - D1 (the paper's): each cube's centre in x, y in [-0.2, 0.2].
 - D2 (ours; the paper has none): stack_pyramid's D2, x in [-0.3, 0.2] and y in
-  [-0.35, 0.35], cut by the Panda's top-down reach.
+  [-0.35, 0.35].
+
+**Success Conditions:**
+The task's own (its env reports it in place of StackPyramid-v1's): ManiSkill's StackCube
+test applied twice.
+- A is on B and C is on A: centres within the cubes' half diagonal + 5 mm (3.3 cm) in xy,
+  and 4 cm +- 5 mm apart in z;
+- A and C are released and static, static meaning below 3 cm/s and 0.5 rad/s here
+  (StackCube's 1 cm/s is below what PhysX reports for cubes resting in a tower).
+
+Robosuite's test asks instead that A and C be lifted, released and touching the cube below.
+stack_pyramid, the same scene with ManiSkill's pyramid goal, stays the harder variant.
+
+**Subtasks:**
+- ``grasp_cubeA``, reference ``cubeA``: ends when ``grasp_cubeA`` (the agent's
+  ``is_grasping``) turns true.
+- ``place_on_cubeB``, reference ``cubeB``: ends when ``cubeA_on_cubeB`` turns true: A on B
+  as the success test has it, and released.
+- ``grasp_cubeC``, reference ``cubeC``: ends when ``grasp_cubeC`` turns true.
+- ``place_on_cubeA``, reference ``cubeA``: ends with the demo.
 """
 
 from __future__ import annotations

@@ -1,23 +1,38 @@
-"""two_robot_lift_bar (on ManiSkill's TwoRobotStackCube-v1 scene): a bar 40 cm long lies
-between two Pandas that face each other across the table (bases at y = -0.75 and +0.75). Each
-arm grasps its end of the bar; then both lift it together, level, 10 cm and more. Success:
-both hands hold the bar, its centre at least 10 cm above the table, its long axis within
-0.1 rad of level.
+"""two_robot_lift_bar: on ManiSkill's TwoRobotStackCube-v1 scene; beyond the paper (two
+arms, its limitation 9).
 
-Arms: ``left`` (ManiSkill's agent 0, at y = -0.75) and ``right`` (agent 1). Subtasks: each
-arm grasps its end (reference object: the bar; both end when the bar is held by both hands,
-their shared term signal), then lifts (the bar). Constraint: the two lifts are coordinated:
-they start together, follow one source demo and move by one observed pose of the bar, step
-for step, as a bar held at both ends must.
+**Task Description:**
+A bar 40 cm long lies between two Pandas that face each other across the table (bases at
+y = -0.75 and +0.75 m). Each arm grasps its end of the bar; then both lift it together,
+level, 10 cm and more.
 
 The scene: TwoRobotStackCube-v1's table and robots, its two cubes set aside at the table's far
 edge (x = 0.25, y = -/+0.4), its goal disc unused, and the bar (3 x 40 x 3 cm, 300 kg/m^3,
 0.11 kg) added by ``load_scene``.
 
-Reset variants (world frame; the table centre is the origin; bar yaw 0: along world y):
+**Randomizations:**
+World frame: the table centre is the origin; positions in metres, the bar's yaw about world
+z in radians (yaw 0: along world y). ManiSkill's reset, the cubes set aside, then the bar
+uniform in its box:
 - D0: bar centre x in [-0.05, 0.05], y in [-0.03, 0.03], yaw in [-0.2, 0.2].
 - D1: x in [-0.1, 0.1], y in [-0.06, 0.06], yaw in [-0.4, 0.4].
 - D2: x in [-0.15, 0.15], y in [-0.1, 0.1], yaw in [-0.6, 0.6].
+
+**Success Conditions:**
+- both hands grasp the bar;
+- its centre is at least 10 cm above the table;
+- its long axis is within 0.1 rad of level.
+
+**Subtasks:**
+Arms: ``left`` (ManiSkill's agent 0, at y = -0.75) and ``right`` (agent 1). Constraint: the
+two lifts are coordinated: they start together, follow one source demo and move by one
+observed pose of the bar, step for step, as a bar held at both ends must.
+- ``grasp_bar_left`` (arm ``left``), reference ``bar``: ends when ``bar_held_by_both``
+  turns true: both hands grasp the bar.
+- ``lift_bar_left`` (arm ``left``), reference ``bar``: ends with the demo.
+- ``grasp_bar_right`` (arm ``right``), reference ``bar``: ends when ``bar_held_by_both``
+  turns true.
+- ``lift_bar_right`` (arm ``right``), reference ``bar``: ends with the demo.
 """
 
 from __future__ import annotations

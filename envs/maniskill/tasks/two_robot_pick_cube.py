@@ -1,26 +1,50 @@
-"""two_robot_pick_cube (ManiSkill TwoRobotPickCube-v1): two Pandas face each other across the
-table (bases at y = -1 and +1). The red cube starts within the left arm's reach only, the
-goal (a point in the air) within the right arm's only, so the cube changes hands: the left arm
-grasps it and sets it down on the handover mark between the arms; once it has let go and
-risen, the right arm grasps it there and carries it to the goal. Success is ManiSkill's: the
-cube within 2.5 cm of the goal, the right arm still.
+"""two_robot_pick_cube: ManiSkill's TwoRobotPickCube-v1; beyond the paper (two arms, its
+limitation 9).
 
-Arms: ``left`` (ManiSkill's agent 0) and ``right`` (agent 1). Subtasks: left: grasp the cube,
-set it on the handover mark (ends when the cube rests on the mark, released), retreat;
-right: wait (the mark; ends as left's set-down does, so that its grasp starts in every source
-demo with the cube on the mark), grasp the cube (the cube), carry it to the goal (the goal).
-Constraint: right's grasp starts once left's set-down has ended (sequential).
+**Task Description:**
+Two Pandas face each other across the table (bases at y = -1 and +1 m). The red cube starts
+within the left arm's reach only, the goal (a point in the air) within the right arm's
+only, so the cube changes hands: the left arm grasps it and sets it down on the handover
+mark between the arms; once it has let go and risen, the right arm grasps it there and
+carries it to the goal.
 
 The handover mark is ours (``load_scene``: a flat disc without collision, 1 m from both
 bases, where both arms reach the table top-down: the left TCP reaches y = +0.025 there, the
-right y = -0.02); success is ManiSkill's condition, computed by the task file.
+right y = -0.02).
 
-Reset variants (world frame; the table centre is the origin):
-- D0: ManiSkill's cube (x in [-0.05, 0.05], y in [-0.2, -0.1], yaw uniform) and goal (x in
-  [-0.05, 0.05], y in [0.1, 0.2], z 2 to 32 cm above the cube's centre), the mark at x in
-  [-0.03, 0.03], y in [-0.01, 0.0].
-- D1: the cube and the goal over twice ManiSkill's x spread (x in [-0.1, 0.1], y as D0).
-- D2: x in [-0.15, 0.15], the cube's y in [-0.25, -0.1], the goal's in [0.1, 0.25].
+**Randomizations:**
+World frame: the table centre is the origin; positions in metres, yaw about world z in
+radians. ManiSkill's reset, then the cube, the mark and the goal's x, y drawn uniform in
+their boxes (no distance or reach cut); the cube's yaw uniform over a full turn, the mark's
+and the goal's 0; the goal's height ManiSkill's, z in [0.02, 0.32] (0 to 30 cm above the
+cube's centre at rest).
+- D0: ManiSkill's x, y of the cube (x in [-0.05, 0.05], y in [-0.2, -0.1]) and of the goal
+  (x in [-0.05, 0.05], y in [0.1, 0.2]); the mark at x in [-0.03, 0.03], y in [-0.01, 0.0].
+- D1: the cube and the goal over twice ManiSkill's x spread (x in [-0.1, 0.1], y as D0);
+  the mark as D0.
+- D2: x in [-0.15, 0.15], the cube's y in [-0.25, -0.1], the goal's in [0.1, 0.25]; the
+  mark as D0.
+
+**Success Conditions:**
+ManiSkill's, computed by the task file:
+- the cube's centre is within 2.5 cm of the goal;
+- the right arm is still (every arm joint below 0.2 rad/s).
+
+**Subtasks:**
+Arms: ``left`` (ManiSkill's agent 0) and ``right`` (agent 1). Constraint: right's grasp
+starts once left's set-down has ended (sequential).
+- ``grasp_cube_left`` (arm ``left``), reference ``cube``: ends when ``left_grasps_cube``
+  turns true.
+- ``set_on_mark`` (arm ``left``), reference ``handover``: ends when
+  ``cube_released_on_mark`` turns true: the cube's centre within 1.5 cm of the mark's in
+  the plane and at most 2.5 cm above the table, the left hand not grasping it.
+- ``retreat_left`` (arm ``left``), reference ``handover``: ends with the demo.
+- ``wait_for_handover`` (arm ``right``), reference ``handover``: ends when
+  ``cube_released_on_mark`` turns true, as left's set-down does, so that right's grasp
+  starts in every source demo with the cube on the mark.
+- ``grasp_cube_right`` (arm ``right``), reference ``cube``: ends when ``right_grasps_cube``
+  turns true.
+- ``carry_to_goal`` (arm ``right``), reference ``goal``: ends with the demo.
 """
 
 from __future__ import annotations

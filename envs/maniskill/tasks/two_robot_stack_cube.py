@@ -1,25 +1,47 @@
-"""two_robot_stack_cube (ManiSkill TwoRobotStackCube-v1): two Pandas face each other across
-the table (bases at y = -0.75 and +0.75). The right arm grasps the green cube B and sets it on
-the goal disc; once it has let go, the left arm, which has meanwhile grasped the blue cube A
-and lifted it, stacks A on B. Success is ManiSkill's: A on B, B within 6 cm of the goal,
-neither held.
+"""two_robot_stack_cube: ManiSkill's TwoRobotStackCube-v1; beyond the paper (two arms, its
+limitation 9).
 
-Arms: ``left`` (ManiSkill's agent 0, near cube A) and ``right`` (agent 1, near cube B).
-Subtasks: right: grasp B, place B on the goal (ends when B is on the goal and released),
-retreat; left: grasp A, carry A (ends when B is placed), stack A on B. Constraint: left's
-stack starts once right's place has ended (sequential).
+**Task Description:**
+Two Pandas face each other across the table (bases at y = -0.75 and +0.75 m). The right arm
+grasps the green cube B and sets it on the goal disc; once it has let go, the left arm,
+which has meanwhile grasped the blue cube A and lifted it, stacks A on B.
 
-Reset variants (world frame; the table centre is the origin):
+**Randomizations:**
+World frame: the table centre is the origin; positions in metres, yaw about world z.
+ManiSkill's reset, then the cubes redrawn uniform in their boxes (no distance or reach
+cut), their yaw uniform over a full turn, and the goal disc drawn uniform in its box (its
+height and tilt ManiSkill's).
 - D0: ManiSkill's cubes (A: x in [-0.05, 0.05], y in [-0.2, -0.1]; B: x in [-0.05, 0.05],
-  y in [0.1, 0.2]; yaw uniform) with the goal disc at x in [-0.05, 0.05], y in
-  [-0.02, 0.02]. ManiSkill puts the goal at y = -0.1, which the right Panda cannot reach
-  top-down (driven there with pd_ee_delta_pose its TCP stops 7.6 cm short, at y = -0.033);
-  near y = 0 both arms reach it.
+  y in [0.1, 0.2]) with the goal disc at x in [-0.05, 0.05], y in [-0.02, 0.02].
+  ManiSkill puts the goal at y = -0.1, which the right Panda cannot reach top-down (driven
+  there with pd_ee_delta_pose its TCP stops 7.6 cm short, at y = -0.033); near y = 0 both
+  arms reach it.
 - D1: the cubes over twice ManiSkill's spread (A: x in [-0.1, 0.1], y in [-0.25, -0.05];
   B: x in [-0.1, 0.1], y in [0.05, 0.25]), the goal as in D0.
 - D2: the cubes over three times ManiSkill's x spread and y out to 30 cm from the centre (A:
   x in [-0.15, 0.15], y in [-0.3, -0.08]; B: mirrored, y in [0.08, 0.3]), the goal as in D0:
   B at least 4 cm from the goal disc's edge.
+
+**Success Conditions:**
+ManiSkill's:
+- A is on B: centres within the cubes' half diagonal + 5 mm (3.3 cm) in xy and
+  4 cm +- 5 mm apart in z;
+- B's centre is within 6 cm of the goal's in xy;
+- the left arm does not grasp A, nor the right arm B.
+
+**Subtasks:**
+Arms: ``left`` (ManiSkill's agent 0, near cube A) and ``right`` (agent 1, near cube B).
+Constraint: left's stack starts once right's place has ended (sequential).
+- ``grasp_cubeA`` (arm ``left``), reference ``cubeA``: ends when ``grasp_cubeA``
+  (ManiSkill's ``is_cubeA_grasped``) turns true.
+- ``carry_cubeA`` (arm ``left``), reference ``goal``: ends when ``cubeB_released_on_goal``
+  turns true, as right's place does.
+- ``stack_cubeA`` (arm ``left``), reference ``cubeB``: ends with the demo.
+- ``grasp_cubeB`` (arm ``right``), reference ``cubeB``: ends when ``grasp_cubeB``
+  (ManiSkill's ``is_cubeB_grasped``) turns true.
+- ``place_cubeB`` (arm ``right``), reference ``goal``: ends when ``cubeB_released_on_goal``
+  turns true: B within 6 cm of the goal (ManiSkill's ``cubeB_placed``) and released.
+- ``retreat`` (arm ``right``), reference ``goal``: ends with the demo.
 """
 
 from __future__ import annotations

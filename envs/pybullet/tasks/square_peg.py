@@ -1,12 +1,27 @@
-"""square_peg (paper: Square): grasp a standing square peg (30 x 30 x 60 mm) and insert it
-into the square hole (34 x 34 mm, 40 mm deep) of a fixture fixed to the table: 4 mm
-clearance, 2 mm a side, so the peg's yaw must match the hole's within a few degrees.
+"""square_peg: PyBullet; the paper's Square.
 
-Reset variants (world frame, table centre at the origin, robot base at x = -0.5):
+**Task Description:**
+Grasp a standing square peg (30 x 30 x 60 mm, 50 g) and insert it into the square hole
+(34 x 34 mm, 40 mm deep) of a fixture fixed to the table: 4 mm clearance, 2 mm a side, so
+the peg's yaw must match the hole's within a few degrees.
+
+**Randomizations:**
+World frame: the table centre is the origin, the robot base at x = -0.5 m; positions in
+metres. Each object uniform in its box, its yaw about world z uniform over a full turn,
+the centres at least 0.12 m apart.
 - D0: the peg in x in [-0.05, 0.05], y in [-0.15, -0.1]; the fixture in x in [-0.05, 0.05],
-  y in [0.1, 0.15] (the demonstrator's distribution);
+  y in [0.1, 0.15] (the demonstrator's distribution).
 - D1: 3x wider in x (+-0.15), y in [-0.2, -0.05] (peg) and [0.05, 0.2] (fixture).
-Yaw is a full turn; centres at least 12 cm apart.
+
+**Success Conditions:**
+- the peg is inserted: its centre within 5 mm of the hole's axis horizontally and its bottom
+  less than 2 cm above the table, at least 2 cm down the hole. Nothing is asked of the
+  grasp.
+
+**Subtasks:**
+- ``grasp_peg``, reference ``peg``: ends when ``grasp_peg`` (both fingers touch the peg)
+  turns true.
+- ``insert_peg``, reference ``hole``: ends with the demo.
 """
 
 from __future__ import annotations

@@ -1,9 +1,23 @@
-"""stack (paper: Stack): grasp cube A (4 cm), place it on cube B (4 cm).
+"""stack: PyBullet; the paper's Stack.
 
-Reset variants (world frame, table centre at the origin, robot base at x = -0.5):
-- D0: both cubes in x, y in [-0.08, 0.08], the demonstrator's distribution;
+**Task Description:**
+Grasp cube A and place it on cube B. Cubes are 4 cm, 50 g.
+
+**Randomizations:**
+World frame: the table centre is the origin, the robot base at x = -0.5 m; positions in
+metres. Each cube uniform in its box, its yaw about world z uniform over a full turn, cube
+centres at least 0.07 m apart.
+- D0: both cubes in x, y in [-0.08, 0.08], the demonstrator's distribution.
 - D1: x, y in [-0.2, 0.2], 2.5x wider.
-Yaw is a full turn; cube centres at least 7 cm apart.
+
+**Success Conditions:**
+- cube A is on cube B: centres within 2 cm horizontally and 4 cm +- 1 cm apart vertically;
+- cube A is not grasped (not touched by both fingers).
+
+**Subtasks:**
+- ``grasp_cubeA``, reference ``cubeA``: ends when ``grasp_cubeA`` (both fingers touch
+  cube A) turns true.
+- ``place_on_cubeB``, reference ``cubeB``: ends with the demo.
 """
 
 from __future__ import annotations

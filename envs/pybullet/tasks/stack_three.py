@@ -1,9 +1,27 @@
-"""stack_three (paper: Stack Three): stack cube A on cube B, then cube C on A (4 cm cubes).
+"""stack_three: PyBullet; the paper's Stack Three.
 
-Reset variants (world frame, table centre at the origin, robot base at x = -0.5):
-- D0: all cubes in x, y in [-0.1, 0.1], the demonstrator's distribution;
+**Task Description:**
+Stack cube A on cube B, then cube C on A. Cubes are 4 cm, 50 g.
+
+**Randomizations:**
+World frame: the table centre is the origin, the robot base at x = -0.5 m; positions in
+metres. Each cube uniform in its box, its yaw about world z uniform over a full turn, cube
+centres at least 0.07 m apart.
+- D0: all cubes in x, y in [-0.1, 0.1], the demonstrator's distribution.
 - D1: x, y in [-0.2, 0.2], 2x wider.
-Yaw is a full turn; cube centres at least 7 cm apart.
+
+**Success Conditions:**
+- cube A is on cube B and cube C on cube A: centres within 2 cm horizontally and
+  4 cm +- 1 cm apart vertically;
+- cube C is not grasped (not touched by both fingers).
+
+**Subtasks:**
+- ``grasp_cubeA``, reference ``cubeA``: ends when ``grasp_cubeA`` (both fingers touch
+  cube A) turns true.
+- ``place_on_cubeB``, reference ``cubeB``: ends when ``cubeA_on_cubeB`` turns true: A on B
+  as the success test has it (held or not).
+- ``grasp_cubeC``, reference ``cubeC``: ends when ``grasp_cubeC`` turns true.
+- ``place_on_cubeA``, reference ``cubeA``: ends with the demo.
 """
 
 from __future__ import annotations
