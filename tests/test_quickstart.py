@@ -172,7 +172,8 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     q = "quickstart/params.yaml"
     out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "noise02",
               "-S", f"{q}:generate.action_noise=0.02")  # fmt: skip
-    assert ran_stages(out) == {"code_deps", "generate@D0", "coverage@D0", "export@D0", "report"}
+    downstream = {"code_deps", "generate@D0", "coverage@D0", "export@D0", "render@D0", "report"}
+    assert ran_stages(out) == downstream
     assert "action_noise: 0.02" in (work / q).read_text()
     assert (work / "params.yaml").read_text() == root_params  # not the root's file
     run("git", "checkout", "--", q)
@@ -182,7 +183,7 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     assert (
         {"code_deps", "coverage@D0", "report"}
         <= ran_stages(out)
-        <= {"code_deps", "generate@D0", "coverage@D0", "export@D0", "report"}
+        <= downstream
     )
     shown = run("mimicgen-pipe", "compare", "--pipeline", "quickstart", "--width", "120")
     lines = shown.splitlines()
