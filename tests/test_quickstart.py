@@ -180,11 +180,7 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "bins4",
               "-S", f"{q}:coverage.bins=4")  # fmt: skip
     # from the workspace noise02 left: generate runs back to the committed store
-    assert (
-        {"code_deps", "coverage@D0", "report"}
-        <= ran_stages(out)
-        <= downstream
-    )
+    assert {"code_deps", "coverage@D0", "report"} <= ran_stages(out) <= downstream
     shown = run("mimicgen-pipe", "compare", "--pipeline", "quickstart", "--width", "120")
     lines = shown.splitlines()
     head = lines[0].split()
