@@ -77,7 +77,14 @@ def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(quickstart, t
     if made_the_locks():
         for key in ("attempts", "successes", "dgr", "run_id"):
             assert ran[key] == committed[key], key
-        assert locked_outs(q / "dvc.lock") == locked_outs(REPO / "quickstart/dvc.lock")
+        # but the videos: the renderer draws on the CPU outside the pinned arithmetic
+        ran_outs, committed_outs = (
+            locked_outs(q / "dvc.lock"),
+            locked_outs(REPO / "quickstart/dvc.lock"),
+        )
+        for outs in (ran_outs, committed_outs):
+            assert outs.pop("quickstart/media/stack_cube_D0")  # the render stage ran and was locked
+        assert ran_outs == committed_outs
     assert same_rate_within_noise(ran["dgr"], ran["attempts"], committed["dgr"]), (ran, committed)
     assert ran["successes"] == committed["successes"]
     # bit for bit on this machine: the same run on one worker gives the same stores and id
