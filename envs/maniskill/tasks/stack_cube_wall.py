@@ -21,11 +21,8 @@ the cubes' yaw uniform over a full turn, cube A on the right (y < 0), cube B on 
   y in [-0.005, 0.005], yaw 0: along x.
 
 **Success Conditions:**
-stack_cube's (ManiSkill's StackCube-v1 test), reported by the task's own env:
-- cube A is on cube B: centres within the cubes' half diagonal + 5 mm (3.3 cm) in xy and
-  4 cm +- 5 mm apart in z;
-- cube A is static (below 1 cm/s and 0.5 rad/s);
-- cube A is not grasped.
+stack_cube's, by the same check (``cube_on_cube_evaluate``, ManiSkill's StackCube-v1 test;
+its conditions are listed in stack_cube.py), reported by the task's own env.
 
 **Subtasks:**
 - ``grasp_cubeA``, reference ``cubeA``: ends when ``grasp_cubeA`` (ManiSkill's
