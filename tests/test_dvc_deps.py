@@ -139,6 +139,7 @@ def test_an_exporter_edit_reruns_export_stages_only():
         "code_deps/export.txt",
         "code_deps/export_observed.txt",
         "quickstart/code_deps/export.txt",
+        "quickstart/code_deps/export_observed.txt",
         *outside,
     }, sorted(edited)
 

@@ -19,10 +19,16 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def graph() -> nx.DiGraph:
+def repo():
     from dvc.repo import Repo
 
-    return Repo(str(REPO)).index.graph  # edges run from a stage to the stages it reads
+    with Repo(str(REPO)) as repo:
+        yield repo
+
+
+@pytest.fixture(scope="module")
+def graph(repo) -> nx.DiGraph:
+    return repo.index.graph  # edges run from a stage to the stages it reads
 
 
 def considered(graph: nx.DiGraph, pipeline: str) -> set:
@@ -122,6 +128,12 @@ def test_each_pipeline_reruns_only_its_own_files_readers(graph):
         "generate_suite_scaling", "train_suite_scaling", "evaluate_suite_scaling", "report_suite"
     }  # fmt: skip
     assert len(scaling) == 1 + 3 + 3 + 1  # the peg_insertion store, 200/1000/5000 demos
+    q = "quickstart/dvc.yaml"
+    noise = rerun(graph, "pose_noise.level", q, "quickstart/params.yaml")
+    assert {s.split(":")[-1] for s in noise} == {
+        "pose_noise", "generate@D0", "coverage@D0", "export@D0", "render@D0", "observe",
+        "export_observed", "report",
+    }  # fmt: skip
     for pipeline in ("suite/dvc.yaml", "transit/dvc.yaml", t):
         assert rerun(graph, "generate.action_noise", pipeline, "params.yaml") == set()
 
@@ -134,6 +146,20 @@ def test_each_pipeline_reruns_only_its_own_files_readers(graph):
 )  # fmt: skip
 def test_a_key_that_changes_no_number_re_runs_nothing(graph, key):
     assert rerun(graph, key) == set()
+
+
+def test_plots_of_one_pipeline_are_shown_by_its_dvc_yaml_target(repo):
+    """docs/workflow.md's `dvc plots show '<pipeline>/dvc.yaml::'` draws the plots that
+    pipeline declares and none of another's (DVC names each plot after its dvc.yaml)."""
+    declared: dict[str, set[str]] = {}
+    for plot in repo.index.plots:
+        declared.setdefault(str(Path(plot.stage.dvcfile.path).relative_to(REPO)), set()).add(
+            str(plot)
+        )
+    assert {"dvc.yaml", "quickstart/dvc.yaml"} <= set(declared)
+    for dvcfile in ("dvc.yaml", "quickstart/dvc.yaml"):
+        shown = repo.plots.show(targets=[f"{dvcfile}::"])["workspace"]["sources"]["data"]
+        assert set(shown) == declared[dvcfile], dvcfile
 
 
 def test_only_the_quickstart_and_the_default_source_stages_track_an_inputs_folder():

@@ -1,8 +1,8 @@
 """The README's five-minute command, run as a newcomer runs it: `dvc repro
 quickstart/dvc.yaml` in a copy of the repository, giving a generated dataset, its DGR, its
-robomimic, LeRobot and ManiSkill exports and a report, with the numbers committed in
-quickstart/metrics/; then the README's robomimic and LeRobot commands, as written, train on
-those exports offline."""
+robomimic, LeRobot and ManiSkill exports, one episode's camera images and their exports, and
+a report, with the numbers committed in quickstart/metrics/; then the README's robomimic and
+LeRobot commands, as written, train on those exports offline."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from mimicgen_pipe.report.fmt import wilson_interval
 from tests.test_cross_cpu import locked_outs, made_the_locks
 from tests.test_docs import FENCE
 from tests.test_output_safety import tree_digest
@@ -92,7 +93,7 @@ def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(quickstart, t
     one.write_text((q / "params.yaml").read_text().replace("workers: 2", "workers: 1"))
     again = tmp_path / "again/stack_cube_D0.zarr"
     cmd = ["mimicgen-pipe", "generate", "--params", str(one), "--variant", "D0",
-           "--parsed", "quickstart/data/parsed/stack_cube.zarr", "--out", str(again),
+           "--parsed", "quickstart/data/pose_noise/stack_cube.zarr", "--out", str(again),
            "--metrics", str(tmp_path / "again.json")]  # fmt: skip
     res = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-3000:]
@@ -118,6 +119,13 @@ def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(quickstart, t
     assert info["total_episodes"] == 20
     with h5py.File(export / "trajectory.h5") as f:
         assert len(f) == 20
+    # one episode's camera images, exported with them
+    observed = json.loads((q / "metrics/observe_stack_cube_D0.json").read_text())
+    assert observed["episodes"] == 1 and observed["frames"] > 0
+    with h5py.File(q / "data/export/stack_cube_D0_observed/demos.hdf5") as f:
+        assert list(f["data"]) == ["demo_0"]
+        images = f["data/demo_0/obs/agentview_image"]
+        assert images.shape == (observed["frames"], 84, 84, 3) and images[0].std() > 0
     check_a_typo_loses_nothing(work, env)
     check_experiments_and_compare(work, env)
 
@@ -161,11 +169,24 @@ def ran_stages(output: str) -> set[str]:
     return set(re.findall(r"Running stage '(?:[^':]+:)?([^']+)'", output))
 
 
+def readme_experiment() -> tuple[str, list[str]]:
+    """README.md's experiment on the quickstart: its name and its ``-S`` settings."""
+    for block in FENCE.finditer((REPO / "README.md").read_text()):
+        for line in block.group(0).splitlines():
+            if line.startswith("dvc exp run quickstart/dvc.yaml"):
+                words = shlex.split(line.partition("#")[0])
+                sets = [words[i + 1] for i, w in enumerate(words) if w == "-S"]
+                return argument(line, "-n"), sets
+    raise AssertionError("README.md: no `dvc exp run quickstart/dvc.yaml` command")
+
+
 def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     """Two real experiments on the quickstart after its run, each `dvc exp run
     quickstart/dvc.yaml -S quickstart/params.yaml:<key>=<value>`: each edits the quickstart's
     own params file and re-runs exactly the stages downstream of the key; `mimicgen-pipe
-    compare` then shows both beside the commit, within 120 columns."""
+    compare` then shows both beside the commit, within 120 columns. The first is the one
+    README.md documents, pose-estimation noise L2, whose DGR leaves the base run's 95%
+    interval."""
 
     def run(*args: str) -> str:
         res = subprocess.run(args, cwd=work, env=env, capture_output=True, text=True)
@@ -177,26 +198,33 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     run(*git, "commit", "-qm", "base")
     root_params = (work / "params.yaml").read_text()
     q = "quickstart/params.yaml"
-    out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "noise02",
-              "-S", f"{q}:generate.action_noise=0.02")  # fmt: skip
-    downstream = {"code_deps", "generate@D0", "coverage@D0", "export@D0", "render@D0", "report"}
+    name, sets = readme_experiment()
+    assert sets == [f"{q}:pose_noise.level=L2"], sets
+    metrics = work / "quickstart/metrics/generate_stack_cube_D0.json"
+    base = json.loads(metrics.read_text())
+    out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", name, "-S", sets[0])
+    downstream = {"code_deps", "pose_noise", "generate@D0", "coverage@D0", "export@D0",
+                  "render@D0", "observe", "export_observed", "report"}  # fmt: skip
     assert ran_stages(out) == downstream
-    assert "action_noise: 0.02" in (work / q).read_text()
+    assert "level: L2" in (work / q).read_text()
     assert (work / "params.yaml").read_text() == root_params  # not the root's file
+    low, high = wilson_interval(base["successes"], base["attempts"])
+    noisy = json.loads(metrics.read_text())
+    assert not low <= noisy["dgr"] <= high, (base, noisy)
     run("git", "checkout", "--", q)
     out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "bins4",
               "-S", f"{q}:coverage.bins=4")  # fmt: skip
-    # from the workspace noise02 left: generate runs back to the committed store
+    # from the workspace the first left: generate runs back to the committed store
     assert {"code_deps", "coverage@D0", "report"} <= ran_stages(out) <= downstream
     shown = run("mimicgen-pipe", "compare", "--pipeline", "quickstart", "--width", "120")
     lines = shown.splitlines()
     head = lines[0].split()
-    assert head[-1] == "workspace" and {"noise02", "bins4"} <= set(head[1:-1])
-    assert head[0] not in ("noise02", "bins4")  # the commit comes first
+    assert head[-1] == "workspace" and {name, "bins4"} <= set(head[1:-1])
+    assert head[0] not in (name, "bins4")  # the commit comes first
     assert max(map(len, lines)) <= 120
     rows = {line.split()[0]: line.split()[1:] for line in lines[1:] if line.strip()}
-    noise = rows["generate.action_noise"]
-    assert noise[head.index("noise02")] == "0.02" and noise[0] == "0.05"
+    level = rows["pose_noise.level"]
+    assert level[head.index(name)] == "L2" and level[0] == "none"
     assert rows["coverage.bins"][head.index("bins4")] == "4"
     assert "dgr_D0" in rows and "coverage_D0" in rows
 
