@@ -1,12 +1,15 @@
 """Shared fixtures. Simulator tests are marked ``sim``; they share one small end-to-end run
-of the real pipeline (source -> parse -> pose_noise -> generate) made once per session."""
+of the real pipeline (source -> parse -> pose_noise -> generate) made once per test run,
+also when pytest-xdist spreads the tests over several processes (:func:`made_once`)."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -61,11 +64,29 @@ generate: {num_demos: 4, max_attempts: 12, workers: 1, seed: 7}
 """
 
 
-@pytest.fixture(scope="session")
-def pipeline(tmp_path_factory) -> Path:
-    """A working directory with a small real run: 3 source demos, parsed, 4 generated demos
-    on D1 (workers=1) and the same run again with workers=2 for the determinism check."""
-    work = tmp_path_factory.mktemp("pipeline")
+def made_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
+    """A folder ``build`` filled once per test run. Under pytest-xdist the workers of one run
+    share it: the first to ask builds it under a lock, the others wait for it and reuse it,
+    so that the simulator work is not repeated per process. Callers must not change it."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        work = tmp_path_factory.mktemp(name)
+        build(work)
+        return work
+    shared = tmp_path_factory.getbasetemp().parent  # the run's folder, above each worker's
+    work, done = shared / name, shared / f"{name}.done"
+    with open(shared / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not done.exists():
+            shutil.rmtree(work, ignore_errors=True)
+            work.mkdir()
+            build(work)
+            done.touch()
+    return work
+
+
+def build_small_run(work: Path) -> None:
+    """SMALL_PARAMS' run in ``work``: 3 source demos, parsed, 4 generated demos on D1
+    (workers=1), and the same run again with workers=2 for the determinism check."""
     (work / "params.yaml").write_text(SMALL_PARAMS)
     cli("source", cwd=work)
     cli("parse", cwd=work)
@@ -84,10 +105,28 @@ def pipeline(tmp_path_factory) -> Path:
         "metrics/again.json",
         cwd=work,
     )
+
+
+@pytest.fixture(scope="session")
+def pipeline(tmp_path_factory) -> Path:
+    """A working directory with a small real run (:func:`build_small_run`), this process's
+    own copy: tests may add outputs to it."""
+    built = made_once(tmp_path_factory, "small_run", build_small_run)
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        return built
+    work = tmp_path_factory.mktemp("pipeline")
+    shutil.copytree(built, work, dirs_exist_ok=True)
     return work
 
 
 PYBULLET_STACK = "task: stack\nbackend: pybullet\nsource: {num_demos: 3, seed: 0}\n"
+
+
+def build_pybullet_stack(work: Path) -> None:
+    """``source`` and ``parse`` with PYBULLET_STACK in ``work``."""
+    (work / "params.yaml").write_text(PYBULLET_STACK)
+    cli("source", cwd=work)
+    cli("parse", cwd=work)
 
 
 @pytest.fixture(scope="session")
@@ -95,11 +134,7 @@ def pybullet_stack(tmp_path_factory) -> Path:
     """A working directory where ``source`` and ``parse`` ran once with PYBULLET_STACK:
     three PyBullet source demos of stack, parsed. Several modules start from these; each
     takes its own copy (stages_copied_to) and leaves this one as it is."""
-    work = tmp_path_factory.mktemp("pybullet_stack")
-    (work / "params.yaml").write_text(PYBULLET_STACK)
-    cli("source", cwd=work)
-    cli("parse", cwd=work)
-    return work
+    return made_once(tmp_path_factory, "pybullet_stack", build_pybullet_stack)
 
 
 def stages_copied_to(work: Path, built: Path) -> Path:

@@ -162,7 +162,7 @@ def test_a_hand_run_follows_its_params_files_pipeline(tmp_path):
     [
         ("coverage", "quickstart/data/generated/stack_cube_D0.zarr"),
         ("export", "quickstart/data/generated/stack_cube_D0.zarr"),
-        ("generate", "quickstart/data/parsed/stack_cube.zarr"),
+        ("generate", "quickstart/data/pose_noise/stack_cube.zarr"),
     ],
 )
 def test_a_missing_input_names_the_params_files_pipeline(tmp_path, stage, missing):

@@ -286,12 +286,30 @@ def test_two_arm_exports_name_each_arms_actions_and_subtasks(two_robot, tmp_path
 
 
 @pytest.mark.sim
-def test_two_arm_episodes_render_with_both_arms_subtasks(two_robot):
-    """The render stage draws a two-arm store's first kept and failed episodes, a frame per
-    step, each caption naming both arms' subtasks."""
-    import json
+def test_two_arm_frames_are_captioned_with_both_arms_subtasks(two_robot, monkeypatch):
+    """A two-arm store's episode gives a frame per step, each captioned with what each arm
+    does (a blank picture stands in for the renderer)."""
+    import envs
+    from mimicgen_pipe import video
 
-    from mimicgen_pipe.video import episode_frames
+    kept = read_store(two_robot / "data/generated/two_robot_stack_cube_D0.zarr")
+    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
+    arms = tuple(dict.fromkeys(s.arm for s in spec.subtasks))
+    captions: list = []
+    monkeypatch.setattr(video, "caption", lambda f, lines, ok=None: captions.append(lines) or f)
+    blank = np.zeros((72, 96, 3), np.uint8)
+    frames = video.episode_frames(lambda s: blank, kept, 0, spec.subtasks, "t", True, "x")
+    assert len(frames) == len(captions) == len(kept.episode(0)["actions"])
+    assert len(arms) == 2 and all(all(f"{a}: " in lines[1] for a in arms) for lines in captions)
+    assert captions[-1][2] == "kept (success)"
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_two_arm_episodes_render_with_the_render_stage(two_robot):
+    """The render stage draws a two-arm store's first kept and failed episodes, a frame per
+    step, into videos."""
+    import json
 
     kept = read_store(two_robot / "data/generated/two_robot_stack_cube_D0.zarr")
     failed = read_store(two_robot / "data/generated/two_robot_stack_cube_D0_failed.zarr")
@@ -300,13 +318,6 @@ def test_two_arm_episodes_render_with_both_arms_subtasks(two_robot):
     firsts = [len(s.episode(0)["actions"]) for s in (kept, failed) if s.n_episodes]
     assert m["frames"] == sum(firsts)
     assert (two_robot / "media/two_robot_stack_cube_D0/kept_0.mp4").stat().st_size > 0
-
-    import envs
-
-    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
-    blank = np.zeros((72, 96, 3), np.uint8)
-    frames = episode_frames(lambda s: blank, kept, 0, spec.subtasks, "t", True, "x")
-    assert len(frames) == len(kept.episode(0)["actions"]) and frames[0].shape[1] == 96
 
 
 @pytest.fixture(scope="module")
