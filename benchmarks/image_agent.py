@@ -37,6 +37,7 @@ import numpy as np
 import yaml
 from _machine import figures_path, machine
 
+from mimicgen_pipe.metrics import timings_file
 from mimicgen_pipe.store import open_store
 
 REPO = Path(__file__).resolve().parent.parent
@@ -113,7 +114,8 @@ def cpu_image_costs(
     evaluated = json.loads((work / "eval.json").read_text())
     if evaluated["success_rate_max"] > 0:
         raise RuntimeError("the untrained policy succeeded: its episode ran short of the horizon")
-    rollout_step = evaluated["seconds_per_episode"] / evaluated["horizon"]
+    timed = json.loads(timings_file(work / "eval.json").read_text())
+    rollout_step = timed["seconds_per_episode"] / evaluated["horizon"]
     total_steps = profile["epochs"] * profile["steps_per_epoch"]
     rollout_episodes = params["evaluate"]["episodes"]
     return {

@@ -39,6 +39,7 @@ from _official import NOT_MEASURED, official_venv, run_official
 import envs
 from mimicgen_pipe.evaluation import evaluation_seed, rollout
 from mimicgen_pipe.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.metrics import timings_file
 from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 from mimicgen_pipe.store import read_store
 
@@ -101,7 +102,7 @@ def evaluation(env, policy_path: str, episodes: int, variant: str) -> tuple[floa
 
 def stage_run(attempts: int, variant: str, parsed: str) -> dict:
     """The generate stage on the benchmark's attempts (the same seeds and blocks) with one
-    worker, as a user runs it; its metrics JSON."""
+    worker, as a user runs it; its metrics JSON and its times."""
     params = yaml.safe_load(Path("params.yaml").read_text())
     params["generate"]["workers"] = 1
     with tempfile.TemporaryDirectory(prefix="lean_step-") as tmp:
@@ -114,6 +115,7 @@ def stage_run(attempts: int, variant: str, parsed: str) -> dict:
         t0 = time.perf_counter()
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         metrics = json.loads((path / "g.json").read_text())
+        metrics |= json.loads(timings_file(path / "g.json").read_text())
         metrics["process_seconds"] = time.perf_counter() - t0
         return metrics
 

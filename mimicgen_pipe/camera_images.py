@@ -242,11 +242,17 @@ def observed_attrs(
 
 
 def observe_metrics(
-    store: Path, job: ObserveJob, frames: int, n_episodes: int, seconds: Mapping[str, float]
+    store: Path,
+    job: ObserveJob,
+    frames: int,
+    n_episodes: int,
+    seconds: Mapping[str, float],
+    wall: float,
 ) -> dict[str, Any]:
     """The observe stage's numbers for the ``store`` it wrote: episodes, frames (steps) per
-    camera, ms per frame per camera, MB of stored (compressed) images per 1000 demos."""
-    out: dict[str, Any] = {"episodes": n_episodes, "frames": frames}
+    camera, ms per frame per camera (of the ``seconds`` each camera took), MB of stored
+    (compressed) images per 1000 demos, and the stage's ``wall`` time [s] (``seconds``)."""
+    out: dict[str, Any] = {"episodes": n_episodes, "frames": frames, "seconds": round(wall, 1)}
     total = 0
     for camera in job.cameras:
         files = (store / "data" / image_key(camera)).rglob("*")

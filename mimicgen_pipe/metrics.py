@@ -16,12 +16,20 @@ are, never by their file names:
   (generated until ``generate.num_demos`` demos were kept: a dataset policies train on) or
   ``dgr`` (a fixed number of attempts: a measure of the data generation rate); null
   elsewhere.
+
+Wall-clock times are not results: they differ on every run, even one that reproduces every
+store bit for bit. A stage writes them (:func:`is_timing`) apart, with the same identity
+fields, to a timings file (:func:`timings_file`: ``timings/`` mirroring ``metrics/``) after
+its outputs are committed. The timings file is no output of the stage (DVC does not track
+it), so that a rerun that reproduces the data leaves its metrics file and dvc.lock as they
+were.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +39,7 @@ import numpy as np
 
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.jsonfile import read_json
-from mimicgen_pipe.outputs import temporary_name
+from mimicgen_pipe.outputs import METRICS, temporary_name
 
 STAGES = ("source", "generate", "coverage", "train", "evaluate", "export", "render", "observe")
 IDENTITY_FIELDS = ("stage", "task", "backend", "variant", "robot", "data", "purpose")
@@ -108,16 +116,46 @@ def read_metrics(path: str | os.PathLike) -> Metrics:
     return Metrics(path, *(raw[k] for k in IDENTITY_FIELDS), values=values)
 
 
-def write_metrics(path: str | os.PathLike, metrics: Mapping[str, Any]) -> Path:
-    """Write flat metrics as JSON through a temporary file of a name no other writer uses
+# wall-clock fields: exact names, prefixes and suffixes (is_timing)
+TIMING_NAMES = frozenset({"seconds", "wall_seconds"})
+TIMING_PREFIXES = ("seconds_per_", "ms_per_")
+TIMING_SUFFIXES = ("_seconds",)
+
+
+def is_timing(key: str) -> bool:
+    """Whether a metrics field is a wall-clock time (``seconds``, ``wall_seconds``,
+    ``seconds_per_*``, ``ms_per_*``, ``*_seconds``): it goes to the timings file."""
+    return key in TIMING_NAMES or key.startswith(TIMING_PREFIXES) or key.endswith(TIMING_SUFFIXES)
+
+
+def split_timings(values: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``values`` as (result fields, wall-clock fields) by :func:`is_timing`."""
+    results = {k: v for k, v in values.items() if not is_timing(k)}
+    return results, {k: v for k, v in values.items() if is_timing(k)}
+
+
+def timings_file(metrics_path: str | os.PathLike) -> Path:
+    """Where the times of the stage that writes ``metrics_path`` go: the same path with its
+    last folder named ``metrics`` named ``timings`` (``suite/metrics/x.json`` ->
+    ``suite/timings/x.json``); beside it as ``<stem>.timings.json`` when no folder of the
+    path is named ``metrics``."""
+    path = Path(metrics_path)
+    folders = path.parent.parts
+    if "metrics" not in folders:
+        return path.with_name(f"{path.stem}.timings.json")
+    i = len(folders) - 1 - folders[::-1].index("metrics")
+    return Path(*folders[:i], "timings", *folders[i + 1 :], path.name)
+
+
+def _write_json(path: Path, values: Mapping[str, Any]) -> Path:
+    """Write flat ``values`` as JSON through a temporary file of a name no other writer uses
     (pid and random suffix), so that concurrent writers never clobber each other's
     half-written file and the reader sees a whole file, old or new."""
-    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temporary_name(path)
     # NaN/inf are not JSON; a value that could not be measured is written as null
     clean = {
-        k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in metrics.items()
+        k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in values.items()
     }
     try:
         tmp.write_text(json.dumps(clean, indent=2, sort_keys=True) + "\n")
@@ -125,6 +163,41 @@ def write_metrics(path: str | os.PathLike, metrics: Mapping[str, Any]) -> Path:
     finally:
         tmp.unlink(missing_ok=True)
     return path
+
+
+def write_metrics(path: str | os.PathLike, metrics: Mapping[str, Any]) -> Path:
+    """Write flat metrics as JSON, atomically (:func:`_write_json`). Result fields only:
+    a wall-clock field (:func:`is_timing`) is a ValueError (a stage writes those with
+    :func:`write_timings`), so that a metrics file is the same on every reproducing run."""
+    timings = sorted(k for k in metrics if is_timing(k))
+    if timings:
+        raise ValueError(f"{path}: wall-clock fields {timings} belong in its timings file")
+    return _write_json(Path(path), metrics)
+
+
+def write_timings(
+    metrics_path: str | os.PathLike, identity: Mapping[str, Any], timings: Mapping[str, Any]
+) -> Path | None:
+    """Write ``identity`` (the metrics file's identity fields, and its run id where it has
+    one) and the wall-clock fields ``timings`` atomically to :func:`timings_file` of the
+    final ``metrics_path``. Called after the stage's outputs are committed: the file is
+    informational, no output of the stage, so what keeps it from being written (a path that
+    holds anything but a JSON object, which is left alone; a full disk) is one warning line
+    and the stage still succeeds; returns None then. ValueError for a field of ``timings``
+    that is not a time or one of ``identity`` that is."""
+    if wrong := sorted(k for k in timings if not is_timing(k)):
+        raise ValueError(f"{metrics_path}: {wrong} are not wall-clock fields")
+    if wrong := sorted(k for k in identity if is_timing(k)):
+        raise ValueError(f"{metrics_path}: identity fields {wrong} are wall-clock fields")
+    path = timings_file(metrics_path)
+    why = METRICS.why_not(path) if path.exists() else None  # a link is replaced, as outputs are
+    try:
+        if why is None:
+            return _write_json(path, {**identity, **timings})
+    except OSError as exc:
+        why = f"cannot be written ({exc.strerror or exc})"
+    print(f"warning: {path} {why}; the times of this run are not kept", file=sys.stderr)
+    return None
 
 
 def generation_metrics(

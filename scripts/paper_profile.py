@@ -226,7 +226,7 @@ def unpack(args: argparse.Namespace) -> None:
 
 def _unpack(args: argparse.Namespace) -> None:
     from mimicgen_pipe.errors import InputError
-    from mimicgen_pipe.metrics import metrics_identity, write_metrics
+    from mimicgen_pipe.metrics import metrics_identity, write_metrics, write_timings
     from mimicgen_pipe.training import checkpoint_path, save_checkpoint
     from stages.train import write_curve
 
@@ -268,7 +268,8 @@ def _unpack(args: argparse.Namespace) -> None:
     last_epoch = max(int(r["epoch"]) for r in rows)
     last = [r for r in rows if int(r["epoch"]) == last_epoch]
     task, data = meta["task"], meta["data"]
-    metrics = metrics_identity("train", task, meta["backend"], meta["robot"], data=data) | {
+    identity = metrics_identity("train", task, meta["backend"], meta["robot"], data=data)
+    metrics = identity | {
         "profile": "paper",
         "device": summary["device"],
         "matmul": summary.get("matmul", "fp32"),
@@ -281,10 +282,10 @@ def _unpack(args: argparse.Namespace) -> None:
         "gradient_steps": int(last[0]["step"]) * len(last),
         "final_loss": float(np.mean([float(r["loss"]) for r in last])),
         "final_val_loss": float(np.mean([float(r["val_loss"]) for r in last])),
-        "wall_seconds": summary["wall_seconds"],
         "trainings_stacked": summary["runs"],
     }
     write_metrics(Path(args.metrics), metrics)
+    write_timings(args.metrics, identity, {"wall_seconds": summary["wall_seconds"]})
     print(f"{args.policies}: {written} checkpoints; {args.metrics}")
 
 

@@ -20,7 +20,13 @@ from mimicgen_pipe.evaluation import (
     run_metrics,
 )
 from mimicgen_pipe.executors import stage_executor
-from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
+from mimicgen_pipe.metrics import (
+    evaluation_metrics,
+    metrics_identity,
+    split_timings,
+    write_metrics,
+    write_timings,
+)
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.training import load_rollout_policy
 from stages import (
@@ -106,13 +112,16 @@ def run(args: argparse.Namespace) -> None:
         make_cameras=camera_renderer(params, robot, cameras, size),
     )
     per_run, wall = evaluate_checkpoints(job, checkpoints, seeds, executor, f"evaluate {name}")
-    metrics = evaluation_metrics(per_run) | run_metrics(checkpoints, e, spec.horizon, wall)
+    metrics, timings = split_timings(
+        evaluation_metrics(per_run) | run_metrics(checkpoints, e, spec.horizon, wall)
+    )
+    identity = metrics_identity(
+        "evaluate", params.task, params.backend, robot, variant=args.variant, data=args.data
+    )
     with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
         write_success_rates(tmp_plot, per_run)
-        identity = metrics_identity(
-            "evaluate", params.task, params.backend, robot, variant=args.variant, data=args.data
-        )
         write_metrics(tmp_metrics, identity | metrics)
+    write_timings(metrics_path, identity, timings)
     print(
         f"evaluate {name}: success {metrics['success_rate_max']:.1f}% (max over checkpoints), "
         f"{metrics['success_rate_last']:.1f}% (last checkpoint) -> {metrics_path}"

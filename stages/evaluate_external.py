@@ -35,7 +35,13 @@ from mimicgen_pipe.external import (
     policy_digest,
     probe,
 )
-from mimicgen_pipe.metrics import evaluation_metrics, metrics_identity, write_metrics
+from mimicgen_pipe.metrics import (
+    evaluation_metrics,
+    metrics_identity,
+    split_timings,
+    write_metrics,
+    write_timings,
+)
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.params import Params
 from mimicgen_pipe.taskspec import TaskSpec
@@ -223,10 +229,12 @@ def run(args: argparse.Namespace) -> None:
         workers=e.workers,
         executor=e.executor,
     )
+    metrics, timings = split_timings(metrics)
+    identity = metrics_identity(
+        "evaluate", params.task, params.backend, robot, variant=args.variant, data=args.data
+    )
     with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
         write_episodes(tmp_plot, results)
-        identity = metrics_identity(
-            "evaluate", params.task, params.backend, robot, variant=args.variant, data=args.data
-        )
         write_metrics(tmp_metrics, identity | metrics)
+    write_timings(metrics_path, identity, timings)
     print(f"evaluate {name}: success {metrics['success_rate_max']:.1f}% -> {metrics_path}")

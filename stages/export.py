@@ -14,7 +14,7 @@ import envs
 from mimicgen_pipe import exporters, layout
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.metrics import metrics_identity, write_metrics
+from mimicgen_pipe.metrics import metrics_identity, split_timings, write_metrics, write_timings
 from mimicgen_pipe.outputs import claim, free_space_error, output_set
 from mimicgen_pipe.store import store_cameras
 from stages import add_selection_arguments, output_path, stage_params
@@ -58,6 +58,10 @@ def run(args: argparse.Namespace) -> None:
     if error is not None:
         raise error
     metrics: dict[str, float | int] = {"episodes": store.n_episodes}
+    a = store.attrs
+    identity = metrics_identity(
+        "export", params.task, a["backend"], a.get("robot"), variant=a.get("variant")
+    )
     with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
         tmp_out.mkdir()
         for fmt in formats:
@@ -74,11 +78,9 @@ def run(args: argparse.Namespace) -> None:
             metrics[f"{fmt}_seconds"] = round(time.perf_counter() - t0, 2)
             metrics |= {f"{fmt}_{k}": v for k, v in figures.items()}
             print(f"export: {fmt} -> {out / path.name}")
-        a = store.attrs
-        identity = metrics_identity(
-            "export", params.task, a["backend"], a.get("robot"), variant=a.get("variant")
-        )
+        metrics, timings = split_timings(metrics)
         write_metrics(tmp_metrics, identity | metrics)
+    write_timings(metrics_path, identity, timings)
     print(f"export: {store.n_episodes} episodes of {store_path} -> {out}")
 
 

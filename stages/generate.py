@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.metrics import split_timings, write_metrics, write_timings
 from mimicgen_pipe.outputs import claim, output_set, store_kind
 from mimicgen_pipe.runner import generate, open_work_dir, write_generated
 from mimicgen_pipe.transit import TRANSITS
@@ -75,14 +75,16 @@ def run(args: argparse.Namespace) -> None:
     # written aside, then renamed failed store, metrics, kept store: a reader that finds the
     # new kept store finds the rest of its run beside it
     outs = (job.failed_out, job.metrics_path, job.out)
+    identity = job.identity | {"run_id": job.run_id}
+    metrics, timings = split_timings(result.metrics)
     with output_set(*outs) as (tmp_failed, tmp_metrics, tmp_out):
         write_generated(tmp_out, tmp_failed, result, job.spec, job.attrs)
-        metrics = result.metrics
-        write_metrics(tmp_metrics, job.identity | {"run_id": job.run_id, **metrics})
+        write_metrics(tmp_metrics, identity | metrics)
     work.remove()
+    write_timings(job.metrics_path, identity, timings)
     print(
         f"generate: {metrics['successes']}/{metrics['attempts']} attempts succeeded "
         f"(DGR {metrics['dgr']:.1f}%, {metrics['ik_failures']} IK failures, "
-        f"median {metrics['seconds_per_attempt_median']:.3f} s/attempt)"
+        f"median {timings['seconds_per_attempt_median']:.3f} s/attempt)"
         f" -> {job.out}"
     )

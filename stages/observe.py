@@ -27,7 +27,7 @@ from mimicgen_pipe.camera_images import (
 )
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.metrics import metrics_identity, write_metrics
+from mimicgen_pipe.metrics import metrics_identity, split_timings, write_metrics, write_timings
 from mimicgen_pipe.outputs import claim, output_set, store_kind
 from mimicgen_pipe.store import open_store, store_writer
 from stages import add_selection_arguments, episode_count, output_path, stage_params
@@ -72,16 +72,8 @@ def run(args: argparse.Namespace) -> None:
     claim((out, store_kind(kind)), metrics_path, inputs=[store_path])
     # the store's own back end renders it, in every worker
     make_renderer = functools.partial(envs.make_renderer, a["backend"])
-    job = ObserveJob(
-        store_path,
-        a["backend"],
-        params.task,
-        a["robot"],
-        tuple(o.cameras),
-        o.height,
-        o.width,
-        make_renderer,
-    )
+    job = ObserveJob(store_path, a["backend"], params.task, a["robot"], tuple(o.cameras),
+                     o.height, o.width, make_renderer)  # fmt: skip
     blocks = episode_blocks(n)
     run_id = observe_run_id(params, a, view.read_rows("env_state", range(n)))
     work = open_work_dir(out, run_id, ImageBlockCodec(blocks, view.lengths, job))
@@ -101,13 +93,14 @@ def run(args: argparse.Namespace) -> None:
                 seconds = write_observed(writer, view, job, images, blocks, progress, work)
         finally:
             images.close()
-        metrics = observe_metrics(tmp_out, job, frames, n, seconds)
-        metrics["seconds"] = round(time.perf_counter() - t0, 1)
+        wall = time.perf_counter() - t0
+        metrics, timings = split_timings(observe_metrics(tmp_out, job, frames, n, seconds, wall))
         identity = metrics_identity(
             "observe", params.task, a["backend"], a["robot"], variant=args.variant
         )
         write_metrics(tmp_metrics, identity | metrics)
     work.remove()
+    write_timings(metrics_path, identity, timings)
     print(
         f"observe: {metrics['frames']} steps x {len(o.cameras)} cameras of {n} episodes "
         f"({metrics['image_mb_per_1000_demos']} MB of images per 1000 demos) -> {out}"

@@ -10,7 +10,7 @@ from pathlib import Path
 import envs
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.metrics import metrics_identity, write_metrics
+from mimicgen_pipe.metrics import metrics_identity, write_metrics, write_timings
 from mimicgen_pipe.outputs import check_same_run, claim, directory_kind, output_set
 from mimicgen_pipe.store import read_store
 from mimicgen_pipe.video import episode_frames, write_gif, write_mp4
@@ -68,13 +68,9 @@ def run(args: argparse.Namespace) -> None:
                     write_gif(tmp_out / f"{name}_{i}.gif", frames, fps)
                 print(f"render: {name} episode {i} ({len(frames)} frames) -> {out / video}")
         renderer.close()
-        write_metrics(
-            tmp_metrics,
-            metrics_identity(
-                "render", params.task, params.backend, attrs["robot"], variant=args.variant
-            )
-            | {
-                "frames": frames_total,
-                "ms_per_frame": round(1000 * seconds / max(1, frames_total), 1),
-            },
+        identity = metrics_identity(
+            "render", params.task, params.backend, attrs["robot"], variant=args.variant
         )
+        write_metrics(tmp_metrics, identity | {"frames": frames_total})
+    ms_per_frame = round(1000 * seconds / max(1, frames_total), 1)
+    write_timings(metrics_path, identity, {"ms_per_frame": ms_per_frame})

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from mimicgen_pipe import layout
 from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.metrics import metrics_identity, write_metrics
+from mimicgen_pipe.metrics import metrics_identity, split_timings, write_metrics, write_timings
 from mimicgen_pipe.outputs import claim, output_set
 from mimicgen_pipe.params import Params, range_error
 from mimicgen_pipe.training import POLICY_DIR, policy_training, train_policies, training_metrics
@@ -161,6 +161,7 @@ def run(args: argparse.Namespace) -> None:
     # every policy's checkpoints, curve and metrics are written aside and renamed together
     # when all have trained, checkpoints last
     outputs = [p.plot for p in todo] + [p.metrics for p in todo] + [p.out for p in todo]
+    times = []  # (metrics path, identity, timings) of each policy, written after the commit
     with output_set(*outputs) as tmps:
         n = len(todo)
         tmp_plots, tmp_metrics, tmp_outs = tmps[:n], tmps[n : 2 * n], tmps[2 * n :]
@@ -168,14 +169,16 @@ def run(args: argparse.Namespace) -> None:
         for i, (p, training, rows) in enumerate(zip(todo, trainings, curves, strict=True)):
             write_curve(tmp_plots[i], rows)
             meta = training.meta
-            metrics = training_metrics(t, training, rows, side_by_side)
-            write_metrics(
-                tmp_metrics[i],
-                metrics_identity("train", params.task, params.backend, meta["robot"], data=p.data)
-                | metrics,
+            metrics, timings = split_timings(training_metrics(t, training, rows, side_by_side))
+            identity = metrics_identity(
+                "train", params.task, params.backend, meta["robot"], data=p.data
             )
+            write_metrics(tmp_metrics[i], identity | metrics)
+            times.append((p.metrics, identity, timings))
             episodes = meta["train_episodes"] + meta["val_episodes"]
             print(
                 f"train: {len(prof.seeds)} run(s) on {episodes} episodes of {p.store}, "
-                f"{metrics['seconds_per_1000_steps']:.1f} s per 1000 steps -> {p.out}"
+                f"{timings['seconds_per_1000_steps']:.1f} s per 1000 steps -> {p.out}"
             )
+    for path, identity, timings in times:
+        write_timings(path, identity, timings)

@@ -27,7 +27,7 @@ from mimicgen_pipe.errors import InputError, StageError
 from mimicgen_pipe.exporters.robomimic import check_finite
 from mimicgen_pipe.external import DEFAULT_PYTHON, _robomimic_train, check_python, format_module
 from mimicgen_pipe.jsonfile import read_json
-from mimicgen_pipe.metrics import metrics_identity, write_metrics
+from mimicgen_pipe.metrics import metrics_identity, write_metrics, write_timings
 from mimicgen_pipe.outputs import claim, directory_kind, output_set
 from mimicgen_pipe.params import Params, TrainProfile
 from stages import add_selection_arguments, stage_params
@@ -146,6 +146,7 @@ def run(args: argparse.Namespace) -> None:
             "normalize_obs": normalize, "seeds": 1, "seed": prof.seeds[0],
             "epochs": prof.epochs, "gradient_steps": prof.epochs * prof.steps_per_epoch,
             "checkpoint_epochs": saved, "final_loss": losses[-1][1] if losses else None,
-            "wall_seconds": seconds, "dataset": str(dataset),
+            "dataset": str(dataset),
         })  # fmt: skip
+    write_timings(args.metrics, identity, {"wall_seconds": seconds})
     print(f"train_robomimic: checkpoints of epochs {saved} -> {out}")

@@ -17,6 +17,7 @@ import pytest
 
 from mimicgen_pipe import exporters, robomimic_source
 from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.metrics import IDENTITY_FIELDS, is_timing
 from mimicgen_pipe.segments import gripper_events, read_boundaries
 from mimicgen_pipe.store import read_store, store_cameras, write_store
 from mimicgen_pipe.taskspec import SubtaskSpec
@@ -602,21 +603,27 @@ def test_export_bad_input_is_one_error_before_anything_is_written(tmp_path, args
     assert not (tmp_path / "out").exists() and not (tmp_path / "metrics").exists()
 
 
-def test_export_metrics_hold_each_formats_image_bytes_and_seconds(tmp_path):
-    """The export stage on a store with images: the bytes the images take in each format
-    (robomimic's image datasets, LeRobot's videos) and the seconds each format took."""
+def test_export_metrics_hold_each_formats_image_bytes_and_its_timings_the_seconds(tmp_path):
+    """The export stage on a store with images: its metrics hold the bytes the images take
+    in each format (robomimic's image datasets, LeRobot's videos) and no time; its timings
+    file (metrics/ -> timings/), the seconds each format took, under the same identity."""
     (tmp_path / "params.yaml").write_text(PARAMS)
     synthetic_store(tmp_path / "observed.zarr", cameras=CAMERAS)
     cli("export", "--store", "observed.zarr", "--formats", "robomimic,lerobot", "--out", "out",
-        "--metrics", "m.json", cwd=tmp_path)  # fmt: skip
-    metrics = json.loads((tmp_path / "m.json").read_text())
+        "--metrics", "metrics/m.json", cwd=tmp_path)  # fmt: skip
+    metrics = json.loads((tmp_path / "metrics/m.json").read_text())
+    timings = json.loads((tmp_path / "timings/m.json").read_text())
+    assert not [k for k in metrics if is_timing(k)]
+    identity = {k: metrics[k] for k in IDENTITY_FIELDS}
+    assert timings.keys() == {*identity, "robomimic_seconds", "lerobot_seconds"}
+    assert timings.items() >= identity.items()
+    assert timings["robomimic_seconds"] > 0 and timings["lerobot_seconds"] > 0
     with h5py.File(tmp_path / "out/demos.hdf5", "r") as f:
         demos = [f[f"data/demo_{i}/obs"] for i in range(len(LENGTHS))]
         stored = sum(g[k].id.get_storage_size() for g in demos for k in MIMICGEN_CAMERAS)
     videos = sum(p.stat().st_size for p in (tmp_path / "out/lerobot/videos").rglob("*.mp4"))
     assert metrics["robomimic_image_bytes"] == stored > 0
     assert metrics["lerobot_image_bytes"] == videos > 0
-    assert metrics["robomimic_seconds"] > 0 and metrics["lerobot_seconds"] > 0
 
 
 @pytest.mark.sim

@@ -20,7 +20,7 @@ import zarr
 from mimicgen_pipe import outputs
 from mimicgen_pipe.errors import InputError
 from mimicgen_pipe.layout import failed_store
-from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.metrics import IDENTITY_FIELDS, write_metrics
 from mimicgen_pipe.outputs import claim, release, store_kind
 from mimicgen_pipe.store import write_store
 from tests.conftest import PYBULLET_STACK, cli, stages_copied_to
@@ -288,6 +288,11 @@ def test_generate_without_zarr_suffix_keeps_kept_and_failed_apart(work):
     assert kept.attrs["kind"] == "generated" and failed.attrs["kind"] == "failed"
     assert kept["meta/episode_ends"].shape[0] == metrics["successes"]
     assert failed["meta/episode_ends"].shape[0] == metrics["attempts"] - metrics["successes"]
+    # the run's times apart, in timings/ (not an output: written after the commit)
+    timings = json.loads((work / "timings/plain.json").read_text())
+    assert "wall_seconds" not in metrics and timings["run_id"] == metrics["run_id"]
+    assert timings.keys() == {*IDENTITY_FIELDS, "run_id", "wall_seconds",
+                              "seconds_per_attempt_mean", "seconds_per_attempt_median"}  # fmt: skip
 
 
 def _generate(work: Path, out: str, attempts: int, kill_at: int | None = None) -> int:

@@ -43,7 +43,7 @@ def repository_copy(dest: Path) -> Path:
         if (REPO / name).is_file():
             (dest / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(REPO / name, dest / name)
-    for sub in ("metrics", "plots", "report", "dvc.lock"):  # made by the run itself
+    for sub in ("metrics", "timings", "plots", "report", "dvc.lock"):  # made by the run itself
         path = dest / "quickstart" / sub
         shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
     subprocess.run(["git", "init", "-q"], cwd=dest, check=True)

@@ -614,10 +614,10 @@ def suite_params(tasks: list[str]) -> Params:
 def test_the_suite_report_has_the_suite_sections_only():
     tasks = ["peg_insertion", "plug_charger"]
     specs = [envs.task_spec("maniskill", t) for t in tasks]
-    timing = {"seconds_per_attempt_mean": 0.3, "steps": 40000, "purpose": "dgr"}
+    fixed = {"steps": 40000, "purpose": "dgr"}
     files = (
-        gen("peg_insertion", "D0", 52.0, **timing),
-        gen("peg_insertion", "O1", 43.0, **timing),
+        gen("peg_insertion", "D0", 52.0, **fixed),
+        gen("peg_insertion", "O1", 43.0, **fixed),
         gen("peg_insertion", "D0", 56.1, attempts=1783, run_id="t"),  # its policy data
         m("evaluate", "peg_insertion", "D0", data="D0", data_run_id="t", success_rate_max=62.0,
           success_rate_last=54.0),
@@ -697,9 +697,9 @@ def test_the_suite_table_states_the_action_noise_each_task_ran_with():
     """plug_charger caps the noise (its 0.5 mm clearance); the others run at the suite's."""
     tasks = ["pull_cube_tool", "plug_charger"]
     specs = [envs.task_spec("maniskill", t) for t in tasks]
-    timing = {"seconds_per_attempt_mean": 0.3, "steps": 40000, "purpose": "dgr"}
-    ms = MetricsSet((gen("pull_cube_tool", "D0", 64.0, **timing),
-                     gen("plug_charger", "D0", 60.0, **timing)))  # fmt: skip
+    fixed = {"steps": 40000, "purpose": "dgr"}
+    ms = MetricsSet((gen("pull_cube_tool", "D0", 64.0, **fixed),
+                     gen("plug_charger", "D0", 60.0, **fixed)))  # fmt: skip
     paper = load_paper_results(PAPER)
     table = suite_dgr_blocks(suite_params(tasks), specs, ms, paper)[-1]
     rows = {r[0]: dict(zip(table.columns, r, strict=True)) for r in table.rows}
@@ -813,7 +813,7 @@ def test_two_arm_tasks_have_their_own_table_and_stay_out_of_the_long_tasks():
     specs = [envs.task_spec("maniskill", t) for t in ("two_robot_stack_cube", "place_sphere")]
     files = (
         gen("two_robot_stack_cube", "D0", 86.5, purpose="dgr", failures_carry_cubeA=10,
-            failures_retreat=17, seconds_per_attempt_mean=2.3, steps=66000),
+            failures_retreat=17, steps=66000),
         m("evaluate", "two_robot_stack_cube", "D0", data="source", success_rate_max=4.0,
           success_rate_last=2.0),
         m("evaluate", "two_robot_stack_cube", "D0", data="D0", success_rate_max=60.0,
@@ -868,14 +868,14 @@ def test_suite_ablations_compare_with_their_own_default_run():
 
 def test_the_transit_report_sets_each_cells_linear_and_planned_runs_side_by_side():
     def run(task, variant, dgr, planned, **extra):
-        fields = dict(purpose="dgr", steps=40000, seconds_per_attempt_mean=0.5) | extra
+        fields = dict(purpose="dgr", steps=40000) | extra
         if planned:
             fields |= {"planner_failures": 3}
         return gen(task, variant, dgr, **fields)
 
     files = [
         run("stack_cube_wall", "wall", 4.5, False),
-        run("stack_cube_wall", "wall", 60.0, True, seconds_per_attempt_mean=1.25),
+        run("stack_cube_wall", "wall", 60.0, True),
         run("stack_cube_wall", "D0", 95.0, False),
         run("pull_cube_tool", "D0", 80.0, True),  # its linear run is absent
         # the wall's policies: their data (generated until 100 kept) and their rollouts
@@ -893,7 +893,7 @@ def test_the_transit_report_sets_each_cells_linear_and_planned_runs_side_by_side
     wall = rows_of(md, "| stack_cube_wall (wall)")
     assert wall == [
         "| stack_cube_wall (wall) | 4.5 [2.4–8.3] (9/200) | 60.0 [53.1–66.5] (120/200) | +55.5 "
-        "| 3 | 0.50 | 1.25 | 200 | 200 |"
+        "| 3 | 200 | 200 |"
     ]
     assert rows_of(md, "| stack_cube_wall (D0)")[0].startswith(
         "| stack_cube_wall (D0) | 95.0 [91.0–97.3] (190/200) | missing | missing | missing |"
@@ -906,6 +906,39 @@ def test_the_transit_report_sets_each_cells_linear_and_planned_runs_side_by_side
         "| linear | missing | missing | missing |",
         "| planned | 100 of 141 attempts | 6.0 | 2.0 |",
     ]
+
+
+def test_no_report_shows_a_wall_clock_time(tmp_path, monkeypatch):
+    """A report is tracked: a rerun that reproduces the data must give the same bytes, so
+    the times a stage took (different on every run) are in no report, whatever they are."""
+    from mimicgen_pipe.report.inputs import read_media
+    from mimicgen_pipe.report.videos import video_blocks
+
+    monkeypatch.chdir(tmp_path)  # the render stage's videos under media/, as it lays them out
+    (tmp_path / "media" / "stack_cube_D0").mkdir(parents=True)
+    (tmp_path / "media" / "stack_cube_D0" / "kept_0.mp4").write_bytes(b"")
+    tasks = ["peg_insertion"]
+    specs = [envs.task_spec("maniskill", t) for t in tasks]
+
+    def reports(t: float) -> str:
+        """The suite's DGR table, the transit report and the videos, with times ``t``."""
+        times = {"seconds_per_attempt_mean": t, "seconds_per_attempt_median": t}
+        g = gen("peg_insertion", "D0", 52.0, purpose="dgr", steps=40000, **times)
+        planned = gen("stack_cube_wall", "wall", 60.0, purpose="dgr", steps=40000,
+                      planner_failures=3, **times)  # fmt: skip
+        linear = gen("stack_cube_wall", "wall", 4.5, purpose="dgr", steps=40000, **times)
+        render = m("render", "stack_cube", "D0", frames=300, ms_per_frame=t)
+        media = read_media(MetricsSet((render,)), "stack_cube", "maniskill", ["D0"])
+        blocks = [
+            *suite_dgr_blocks(suite_params(tasks), specs, MetricsSet((g,)), PaperResults(())),
+            *build_transit_report(Params(), MetricsSet((planned, linear))),
+            *video_blocks("stack_cube", ["D0"], media, "../media"),
+        ]
+        return render_markdown(blocks)
+
+    md = reports(123.25)
+    assert "kept_0.mp4" in md and "123" not in md
+    assert md == reports(7.5)
 
 
 def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):

@@ -158,10 +158,9 @@ def other_run_note(stage: str) -> str:
 
 @dataclass(frozen=True)
 class Media:
-    """The render stage's videos of one variant: file names and time per frame [ms]."""
+    """The render stage's videos of one variant: their file names."""
 
     files: frozenset[str]
-    ms_per_frame: float | None
 
 
 def read_heatmaps(plots: str | Path, task: str, variants: Sequence[str]) -> dict[str, Path]:
@@ -179,14 +178,13 @@ def link(path: str | Path, folder: str | Path) -> str:
 def read_media(
     ms: MetricsSet, task: str, backend: str, variants: Sequence[str]
 ) -> Mapping[str, Media]:
-    """Variant -> its videos where the render stage keeps them (layout.media_dir), with the
-    time per frame of its render metrics; variants without videos, or whose render metrics
-    are not in ``ms`` (another pipeline's videos), are left out."""
+    """Variant -> its videos where the render stage keeps them (layout.media_dir); variants
+    without videos, or whose render metrics are not in ``ms`` (another pipeline's videos),
+    are left out."""
     media = {}
     for v in variants:
         folder = layout.media_dir(task, v)
         m = ms.one(stage="render", task=task, backend=backend, variant=v)
         if folder.is_dir() and m is not None:
-            ms_per_frame = m.values.get("ms_per_frame")
-            media[v] = Media(frozenset(p.name for p in folder.iterdir()), ms_per_frame)
+            media[v] = Media(frozenset(p.name for p in folder.iterdir()))
     return media

@@ -66,8 +66,6 @@ def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
                 *kept,
                 fmt_delta(*(None if m is None else m.values["dgr"] for m in (lin, plan))),
                 _cell(plan, "planner_failures"),
-                _cell(lin, "seconds_per_attempt_mean", 2),
-                _cell(plan, "seconds_per_attempt_mean", 2),
                 *steps,
             )
         )
@@ -78,8 +76,6 @@ def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
             "planned DGR % (kept/attempts)",
             "planned − linear",
             "planner failures",
-            "s/attempt linear",
-            "s/attempt planned",
             "steps/attempt linear",
             "steps/attempt planned",
         ),
@@ -98,7 +94,8 @@ def transit_blocks(params: Params, ms: MetricsSet) -> list[Block]:
             "and step). stack_cube_wall's source demos are recorded with its wall out of the "
             "way (D0); in its variant wall, the wall stands between the cubes. Planner "
             "failures: attempts stopped because no path was found, apart from task "
-            f"failures. Seconds and steps per attempt over all attempts. `{MISSING}` marks a "
+            "failures. Steps per attempt over all attempts (times per attempt: "
+            f"`transit/timings/`). `{MISSING}` marks a "
             f"run the pipeline did not produce. {CI_NOTE}"
         ),
         table,

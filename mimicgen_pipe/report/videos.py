@@ -5,7 +5,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from mimicgen_pipe.report.blocks import Block, Heading, Image, Text
-from mimicgen_pipe.report.fmt import fmt
 from mimicgen_pipe.report.inputs import Media
 
 
@@ -14,8 +13,7 @@ def video_blocks(
 ) -> list[Block]:
     """The render stage's GIFs per variant (first kept and first failed episode), referred to
     from the report's folder as ``folder``/<task>_<variant>/<kept|failed>_0.gif, with their
-    MP4s and the measured time per frame. ``media``: variant -> its videos; variants without
-    videos are left out."""
+    MP4s. ``media``: variant -> its videos; variants without videos are left out."""
     blocks: list[Block] = []
     for v in variants:
         m = media.get(v)
@@ -28,9 +26,7 @@ def video_blocks(
         mp4s = ", ".join(
             f"`{folder}/{task}_{v}/{f}`" for f in sorted(m.files) if f.endswith(".mp4")
         )
-        blocks.append(
-            Text(f"Videos: {mp4s or 'none'} (rendered at {fmt(m.ms_per_frame)} ms per frame).")
-        )
+        blocks.append(Text(f"Videos: {mp4s or 'none'}."))
     if not blocks:
         return []
     return [
@@ -38,7 +34,7 @@ def video_blocks(
         Text(
             "The first kept and the first failed generated episode of each variant, replayed "
             "from their stored states (render stage); the caption names the subtask and the "
-            "source demo its segment was taken from."
+            "source demo its segment was taken from. Times per frame: `timings/`."
         ),
         *blocks,
     ]
