@@ -151,7 +151,9 @@ class StepProgress:
         self.estimated = False
         self.directory = tempfile.mkdtemp(prefix="mimicgen-rollouts-")
         self.started = time.perf_counter()
-        self.bar = tqdm(total=self.total, desc=label, unit="step", file=sys.stderr)
+        # counts arrive in bursts (every PROGRESS_SECONDS, or a block at a time): the time
+        # left from the mean rate so far, which settles, not from the last burst's
+        self.bar = tqdm(total=self.total, desc=label, unit="step", file=sys.stderr, smoothing=0)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="rollout-progress", daemon=True)
         self._thread.start()

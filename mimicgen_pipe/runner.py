@@ -316,11 +316,10 @@ def generate(
     cannot reach the task) or when the seeds run out before ``num_demos`` successes; an
     Interrupted on the way up says how far the run got."""
     tally = AttemptTally()
-    bar = tqdm(
-        total=len(seeds) if num_demos is None else num_demos,
-        desc=label,
-        unit="attempt" if num_demos is None else "demo",
-        disable=label is None,
+    bar = attempts_bar(
+        len(seeds) if num_demos is None else num_demos,
+        "attempt" if num_demos is None else "demo",
+        label,
     )
     t0 = time.perf_counter()
     results = run_attempts(job, seeds, executor, work)
@@ -350,6 +349,14 @@ def generate(
     if num_demos is not None and len(tally.kept) < num_demos:
         too_few_demos(tally, num_demos, work)
     return generation_result(job, tally, wall)
+
+
+def attempts_bar(total: int, unit: str, label: str | None, **kw: Any) -> tqdm:
+    """The progress bar of a generate run: ``total`` ``unit``s (demos or attempts), none
+    when ``label`` is None. Attempts come back a block at a time, so the time left is
+    estimated from the mean rate so far, not from tqdm's moving average of the last bursts
+    (which swings from hours to 0 s); it settles after the first blocks."""
+    return tqdm(total=total, desc=label, unit=unit, disable=label is None, smoothing=0, **kw)
 
 
 def take_attempts(

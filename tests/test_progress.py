@@ -81,3 +81,23 @@ def test_observe_workers_count_frames_before_a_block_ends(tmp_path, monkeypatch)
     assert renderer.seen == list(range(8))  # counted before the next frame, episode 0 too
     assert read_counts(directory).steps == 8
     assert images["front"].shape == (8, 2, 3, 3)
+
+
+def test_generates_time_left_settles_when_attempts_come_back_in_bursts():
+    """Two blocks of 5 demos, at 20 s and at 40 s, each counted demo by demo within a
+    millisecond: the time left for the other 10 is taken from the mean rate so far (40 s),
+    not from a moving average that the bursts pull towards 0 s."""
+    from mimicgen_pipe.runner import attempts_bar
+
+    now = [0.0]
+    bar = attempts_bar(20, "demo", "generate", file=io.StringIO(), mininterval=0)
+    bar._time = lambda: now[0]
+    bar.start_t = bar.last_print_t = 0.0
+    for block in (20.0, 40.0):
+        for k in range(5):
+            now[0] = block + k * 1e-4
+            bar.update(1)
+    info = bar.format_dict
+    rate = info["rate"] or (info["n"] - info["initial"]) / info["elapsed"]
+    assert 36 < (info["total"] - info["n"]) / rate < 44
+    bar.close()
