@@ -162,6 +162,25 @@ def test_plots_of_one_pipeline_are_shown_by_its_dvc_yaml_target(repo):
         assert set(shown) == declared[dvcfile], dvcfile
 
 
+def test_only_the_report_summaries_are_declared_metrics(repo):
+    """`dvc exp show` and `dvc metrics diff` show every declared metric: each pipeline's
+    report stage declares its summary.json and nothing else is one, so that a comparison of
+    runs fits a screen. A stage's own metrics file is an uncached output."""
+    declared = {
+        (Path(o.fs_path).relative_to(REPO).as_posix(), s.addressing.rpartition(":")[2])
+        for s in repo.index.stages
+        for o in s.outs
+        if o.metric
+    }
+    summaries = {(p.parent / "report/summary.json").relative_to(REPO).as_posix() for p in PIPELINES}
+    assert {path for path, _ in declared} == summaries
+    assert all(stage.startswith("report") for _, stage in declared), sorted(declared)
+    per_stage = [
+        o for s in repo.index.stages for o in s.outs if "metrics" in Path(o.def_path).parts
+    ]
+    assert per_stage and not [str(o) for o in per_stage if o.use_cache or o.metric]
+
+
 def test_only_the_quickstart_and_the_default_source_stages_track_an_inputs_folder():
     """source.from_file is allowed where the source stage tracks <pipeline>/inputs/."""
     found = {
@@ -220,11 +239,12 @@ def test_a_pipeline_fits_its_line_limit(path):
 
 
 def stand_in(stage: dict) -> dict:
-    """``stage`` (a dvc.yaml stage) with a command that writes its outs and metrics instead
-    of running the stage: its deps, params and outputs as they are."""
-    metrics = [next(iter(m)) for m in stage["metrics"]]
-    cmd = [f"mkdir -p {o} && echo x > {o}/x" for o in stage["outs"]]
-    cmd += [f"mkdir -p $(dirname {m}) && echo 1 > {m}" for m in metrics]
+    """``stage`` (a dvc.yaml stage) with a command that writes its outs instead of running
+    the stage: its deps, params and outputs as they are. An out given as a mapping (an
+    uncached metrics file) gets a file, any other a folder."""
+    files = [next(iter(o)) for o in stage["outs"] if isinstance(o, dict)]
+    cmd = [f"mkdir -p {o} && echo x > {o}/x" for o in stage["outs"] if isinstance(o, str)]
+    cmd += [f"mkdir -p $(dirname {f}) && echo 1 > {f}" for f in files]
     return stage | {"cmd": " && ".join(cmd)}
 
 
