@@ -21,6 +21,20 @@ os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
 REPO = Path(__file__).resolve().parents[1]
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Under pytest-xdist's ``--dist loadgroup`` (the README's test command), the tests of a
+    module run in one process, which makes its module fixtures once; the tests of a module
+    that sets ``SPREAD_TESTS = True`` (they share nothing and each takes minutes) are spread
+    over the processes one by one. Runs before xdist reads the groups."""
+    for item in items:
+        module = getattr(item, "module", None)
+        if module is None or getattr(module, "SPREAD_TESTS", False):
+            continue
+        if item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(module.__name__))
+
+
 def same_attempt(a, b) -> bool:
     """Whether two generation attempts are the same: seed, outcome, source demos, initial
     state, and every step array (names in order, dtypes, values) bit for bit."""

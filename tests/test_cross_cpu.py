@@ -104,8 +104,9 @@ TRAIN = {
 
 
 def run_chain(work: Path, env: dict[str, str] | None) -> dict[str, str]:
-    """The quickstart's source -> parse -> generate D0 as its dvc.yaml runs them, then a few
-    training steps on the generated store; the md5 of each output directory."""
+    """The quickstart's source -> parse -> pose_noise -> generate D0 as its dvc.yaml runs
+    them, then a few training steps on the generated store; the md5 of each output
+    directory."""
     work.mkdir()
     params = work / "params.yaml"
     doc = yaml.safe_load((REPO / "quickstart/params.yaml").read_text())
@@ -115,15 +116,18 @@ def run_chain(work: Path, env: dict[str, str] | None) -> dict[str, str]:
     out = {
         f"{q}/source/stack_cube.zarr": ["source"],
         f"{q}/parsed/stack_cube.zarr": ["parse", "--source", f"{q}/source/stack_cube.zarr"],
+        f"{q}/pose_noise/stack_cube.zarr": [
+            "pose_noise", "--parsed", f"{q}/parsed/stack_cube.zarr",
+        ],
         f"{q}/generated/stack_cube_D0.zarr": [
-            "generate", "--variant", "D0", "--parsed", f"{q}/parsed/stack_cube.zarr",
+            "generate", "--variant", "D0", "--parsed", f"{q}/pose_noise/stack_cube.zarr",
         ],
         "policies": ["train", "--data", "D0", "--store", f"{q}/generated/stack_cube_D0.zarr"],
     }  # fmt: skip
     for path, args in out.items():
         stage = args[0]
-        extra = {"parse": [], "train": ["--plot", "train.csv"]}.get(stage, [])
-        if stage != "parse":  # parse writes no metrics
+        extra = {"train": ["--plot", "train.csv"]}.get(stage, [])
+        if stage not in ("parse", "pose_noise"):  # they write no metrics
             extra += ["--metrics", f"{stage}.json"]
         cli(*args, "--params", str(params), "--out", path, *extra, cwd=work, env=env)
     return {path: dvc_dir_md5(work / path) for path in out}

@@ -16,6 +16,7 @@ from mimicgen_pipe.store import read_store
 from tests.conftest import REPO, cli, replay_first_episodes
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
+SPREAD_TESTS = True  # each task's test stands alone: pytest-xdist may run them side by side
 
 SUITE = yaml.safe_load((REPO / "suite/params.yaml").read_text())["suite"]
 
