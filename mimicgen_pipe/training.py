@@ -675,7 +675,9 @@ def training_metrics(
 ) -> dict[str, Any]:
     """A policy's training metrics from its curve (:func:`train_policies`): the final
     training and validation losses (mean over training seeds), gradient steps and wall time
-    [s] over all seeds, and how the trainings ran (torch threads, trainings side by side)."""
+    [s] over all seeds, each (seed, epoch, seconds since the start) of the curve
+    (``epoch_seconds``), and how the trainings ran (torch threads, trainings side by
+    side)."""
     prof = train.active
     last = [r for r in curve if r["epoch"] == prof.epochs]
     seconds = sum(r["seconds"] for r in last)
@@ -691,6 +693,7 @@ def training_metrics(
         "final_val_loss": float(np.mean([r["val_loss"] for r in last])),
         "wall_seconds": seconds,
         "seconds_per_1000_steps": 1000 * seconds / steps,
+        "epoch_seconds": [[int(r["seed"]), int(r["epoch"]), r["seconds"]] for r in curve],
         "torch_threads": prof.threads or torch.get_num_threads(),
         "trainings_side_by_side": side_by_side,
     }

@@ -65,9 +65,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def write_curve(path: Path, rows: list[dict]) -> None:
-    """The training curve, one row per (training seed, epoch)."""
+    """The training curve, one row per (training seed, epoch); the rows' wall-clock
+    ``seconds`` go to the timings file instead (training_metrics' ``epoch_seconds``)."""
     with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, ["seed", "epoch", "step", "loss", "val_loss", "seconds"])
+        writer = csv.DictWriter(
+            f, ["seed", "epoch", "step", "loss", "val_loss"], extrasaction="ignore"
+        )
         writer.writeheader()
         writer.writerows(rows)
 

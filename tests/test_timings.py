@@ -23,7 +23,7 @@ from mimicgen_pipe.metrics import (
 # every wall-clock field a stage writes, by stage (grep of stages/, mimicgen_pipe/, scripts/)
 TIMING_KEYS = {
     "generate": ["seconds_per_attempt_mean", "seconds_per_attempt_median", "wall_seconds"],
-    "train": ["wall_seconds", "seconds_per_1000_steps"],  # train_robomimic, paper_profile too
+    "train": ["wall_seconds", "seconds_per_1000_steps", "epoch_seconds"],  # and robomimic's
     "evaluate": ["wall_seconds", "seconds_per_episode"],  # evaluate_external too
     "export": ["robomimic_seconds", "lerobot_seconds", "maniskill_seconds"],
     "render": ["ms_per_frame"],

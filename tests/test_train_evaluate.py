@@ -102,6 +102,11 @@ def test_train_and_evaluate_stages(pipeline):
         ("1", "1"),
         ("1", "2"),
     ]
+    # no wall-clock column in the tracked curve: the times are in the timings file
+    assert list(curve[0]) == ["seed", "epoch", "step", "loss", "val_loss"]
+    timed = json.loads((pipeline / "timings/train_stack_cube_D1.json").read_text())
+    assert [e[:2] for e in timed["epoch_seconds"]] == [[0, 1], [0, 2], [1, 1], [1, 2]]
+    assert all(e[2] > 0 for e in timed["epoch_seconds"]) and "epoch_seconds" not in train
     source = json.loads((pipeline / "metrics/train_stack_cube_source.json").read_text())
     assert source["train_episodes"] + source["val_episodes"] == 3
 
