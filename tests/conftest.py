@@ -125,11 +125,9 @@ def build_small_run(work: Path) -> None:
 def pipeline(tmp_path_factory) -> Path:
     """A working directory with a small real run (:func:`build_small_run`), this process's
     own copy: tests may add outputs to it."""
-    built = made_once(tmp_path_factory, "small_run", build_small_run)
-    if "PYTEST_XDIST_WORKER" not in os.environ:
-        return built
     work = tmp_path_factory.mktemp("pipeline")
-    shutil.copytree(built, work, dirs_exist_ok=True)
+    shutil.copytree(made_once(tmp_path_factory, "small_run", build_small_run), work,
+                    dirs_exist_ok=True)  # fmt: skip
     return work
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from mimicgen_pipe.metrics import (
+    IDENTITY_FIELDS,
     generation_metrics,
     is_timing,
     metrics_identity,
@@ -111,16 +112,21 @@ def test_write_timings_leaves_what_is_no_json_object_alone(tmp_path: Path, capsy
     assert str(theirs) in line and "not JSON" in line
 
 
-def test_the_rule_parts_every_committed_metrics_field_as_the_lists_do() -> None:
-    """Over every stage's metrics file committed in this repository (before or after its
-    times moved out), a field is a timing exactly when it is one of TIMING_KEYS: a result
-    field named like a time would leave its metrics file."""
+def test_committed_metrics_hold_no_time_and_timings_only_times() -> None:
+    """Every stage's metrics file committed in this repository holds no wall-clock field,
+    and every committed timings file holds its identity fields (with generate's run id) and
+    times of TIMING_KEYS only: a result field named like a time would leave its metrics
+    file, and a time missed by the rule would stay in it."""
     repo = Path(__file__).resolve().parents[1]
     known = {k for keys in TIMING_KEYS.values() for k in keys}
-    fields = set()
+    fields: set[str] = set()
     for path in [*repo.glob("metrics/**/*.json"), *repo.glob("*/metrics/**/*.json")]:
         values = json.loads(path.read_text())
         if isinstance(values, dict) and "stage" in values:  # benchmarks' figures are not
             fields |= set(values)
     assert len(fields) > 100
-    assert {k for k in fields if is_timing(k)} <= known
+    assert not [k for k in fields if is_timing(k) or k in known]
+    timed: set[str] = set()
+    for path in [*repo.glob("timings/**/*.json"), *repo.glob("*/timings/**/*.json")]:
+        timed |= set(json.loads(path.read_text()))
+    assert timed - known == {*IDENTITY_FIELDS, "run_id"}
