@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe.metrics import (
+from mimicgen_pipe.data.metrics import (
     IDENTITY_FIELDS,
     generation_metrics,
     is_timing,
