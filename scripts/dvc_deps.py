@@ -11,10 +11,13 @@ every project module it imports (transitively, imports inside functions included
 module of a registry package it loads from by a name known at run time
 (``registry.load("<package>", name)``; a literal name: that module only; see
 mimicgen_pipe/core/registry.py). Under ``mimicgen_pipe/backends/`` only the stage's back end is
-followed (the ``--backend`` its command passes, else the pipeline's ``backend`` param), with
-the task files the stage runs. Its code deps are then: each layer folder holding one of those
-modules (``mimicgen_pipe/core``, ...), its back end's folder (tasks included), and the other
-files one by one (the stage modules, the packages' ``__init__.py``).
+followed (the ``--backend`` its command passes, else the pipeline's ``backend`` param), and
+under ``mimicgen_pipe/tasks/`` only the task files the stage runs (its ``--task``, else the
+``task`` param; each task of its matrix) and what they import. Its code deps are then: each
+layer folder holding one of those modules (``mimicgen_pipe/core``, ...), its back end's
+folder, its task's file by template (``mimicgen_pipe/tasks/${backend}/${task}.py``), and the
+other files one by one (the stage modules, the packages' ``__init__.py``, the file of a task
+that its task is made from), so that editing one task's file re-runs that task's stages.
 
 Each pipeline's first stage, ``check``, validates the whole params file (``mimicgen-pipe
 check``) and writes ``<params file>.checked``, a constant line, on which every other stage
@@ -90,7 +93,7 @@ def imported_modules(path: Path) -> set[str]:
             name = node.args[1] if len(node.args) > 1 else None
             if isinstance(name, ast.Constant) and isinstance(name.value, str):
                 out.add(f"{loaded}.{name.value}")  # one named module of the registry
-            elif not loaded.endswith(".tasks"):  # task files: the stage's templated dep
+            elif not loaded.startswith("mimicgen_pipe.tasks."):  # tasks: the stage's own dep
                 out.update(package_modules(loaded))
     return {m for m in out if module_file(m) is not None}
 
@@ -112,7 +115,7 @@ def closure(stage_module: str, backend: str, tasks: Iterable[str] = ()) -> set[P
     ``tasks`` it runs import, and everything they import, following only ``backend``'s
     package under mimicgen_pipe/backends/. The task files themselves are not included."""
     backends = {p.parent.name for p in (REPO / "mimicgen_pipe/backends").glob("*/__init__.py")}
-    roots = [f"mimicgen_pipe.backends.{backend}.tasks.{t}" for t in tasks]
+    roots = [f"mimicgen_pipe.tasks.{backend}.{t}" for t in tasks]
     # the CLI pins the numeric libraries' code paths before any stage runs (cli.py)
     todo = [stage_module, "mimicgen_pipe.stages", "mimicgen_pipe.run.arithmetic", *roots]
     seen: set[str] = set()
@@ -184,11 +187,12 @@ def stage_code(stage: dict, params: dict) -> tuple[str, str, list[str]]:
 
 
 LAYERS = ("core", "method", "data", "run", "sources", "learn", "media", "formats", "report")
+# (the back ends and the tasks are folders per back end and files per task: see dep_of)
 CHECK_STAGE = "check"
 
 
 def task_file(backend: str, task: str) -> Path:
-    return Path("mimicgen_pipe", "backends", backend, "tasks", f"{task}.py")
+    return Path("mimicgen_pipe", "tasks", backend, f"{task}.py")
 
 
 def backend_token(stage: dict) -> str:
@@ -198,25 +202,50 @@ def backend_token(stage: dict) -> str:
     return words[words.index("--backend") + 1] if "--backend" in words else "${backend}"
 
 
+def task_token(stage: dict) -> str:
+    """The task as the stage's command names it (``${item.task}``, ``${task}``, a name)."""
+    words = " ".join(stage["cmd"].split()).split()
+    if "${item.task}" in words or any("${item.task}" in w for w in words):
+        return "${item.task}"
+    return words[words.index("--task") + 1] if "--task" in words else "${task}"
+
+
 def dep_of(path: Path, backend: str) -> str:
     """The code dep that covers the project file ``path``: its layer's folder, its back end's
-    folder (``backend`` as dvc.yaml writes it), or the file itself."""
+    folder, or the file itself (a task's file under the back end as dvc.yaml names it)."""
     parts = path.parts
     if len(parts) > 2 and parts[1] in LAYERS:
         return f"mimicgen_pipe/{parts[1]}"
     if len(parts) > 3 and parts[1] == "backends":
         return f"mimicgen_pipe/backends/{backend}"
+    if len(parts) > 3 and parts[1] == "tasks":
+        return f"mimicgen_pipe/tasks/{backend}/{parts[3]}"
     return path.as_posix()
+
+
+@functools.cache
+def docstring_only(path: Path) -> bool:
+    """Whether a project file runs no code (a package's ``__init__.py`` holding only its
+    docstring): no dep, since no edit of it can change what a stage does."""
+    body = ast.parse((REPO / path).read_text()).body
+    return (
+        len(body) == 1 and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+    )
 
 
 def code_deps(stage: dict, params: dict) -> list[str]:
     """The code deps a dvc.yaml stage must list (paths from the repository root): layers in
-    their order, then the back end's folder and single files."""
+    their order, then the back end's folder and single files: its own task's file by
+    template, and the file of each task that one of its tasks is made from."""
     module, backend, tasks = stage_code(stage, params)
-    files = closure(module, backend, tasks) | {task_file(backend, t) for t in tasks}
+    # one closure per task (its own file left out): what a task imports of another is there
+    files = set().union(*(closure(module, backend, one) for one in [[t] for t in tasks] or [[]]))
     token = backend_token(stage)
+    deps = {dep_of(f, token) for f in files if not docstring_only(f)}
+    if tasks:
+        deps.add(f"mimicgen_pipe/tasks/{token}/{task_token(stage)}.py")
     order = {f"mimicgen_pipe/{layer}": i for i, layer in enumerate(LAYERS)}
-    return sorted({dep_of(f, token) for f in files}, key=lambda d: (order.get(d, 99), d))
+    return sorted(deps, key=lambda d: (order.get(d, 99), d))
 
 
 def is_code(dep: object) -> bool:

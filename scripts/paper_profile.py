@@ -6,8 +6,9 @@ then checkpointed and evaluated here as the train stage's own policies.
     python scripts/paper_profile.py pack --task peg_insertion \\
         --store data/generated/peg_insertion_D0_train.zarr --out data/gpu/peg_insertion_D0.npz
     # on the GPU machine, with a copy of this repository (PYTHONPATH=. where the package is
-    # not installed): every task and seed as one stacked network (mimicgen_pipe.
-    # stacked_training), checkpoints every --every epochs, --deadline seconds at most
+    # not installed): every task and seed as one stacked network
+    # (mimicgen_pipe.learn.stacked_training), checkpoints every --every epochs, --deadline seconds
+    # at most
     python scripts/paper_profile.py train --packed data/gpu/*.npz --out /tmp/paper --deadline 450
     # there too: each run's checkpoints of --epochs, of --spread N (N in all, one period
     # apart, the last included; the period printed) and its last, in files of at most

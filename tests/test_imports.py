@@ -1,6 +1,6 @@
 """How the project's packages depend on each other, read from their source (nothing is
-imported): each layer of mimicgen_pipe (a folder) imports only the layers below it, so the
-library never imports the simulator back ends and a back end only the core; no project
+imported): each layer of mimicgen_pipe (a folder) imports only the layers below it, so no
+layer but the stages imports the back ends, and a back end imports only the core; no project
 modules import each other in a cycle, the source stage runs without the exporters, and
 neither the product (mimicgen_pipe, scripts) nor its tests import or run the lab's
 investigation scripts (lab/).
@@ -188,8 +188,12 @@ LAYERS: dict[str, frozenset[str]] = {
     "formats": frozenset({"core", "method", "data", "run", "sources"}),
     "report": frozenset({"core", "data"}),
     "backends": frozenset({"core"}),
+    "tasks": frozenset({"core", "backends"}),
 }
 LAYERS["stages"] = frozenset(LAYERS)
+# what a layer may load by name through the registry besides what it may import: a back end
+# finds its task files (mimicgen_pipe.tasks.<backend>) when asked for one
+LOADS: dict[str, frozenset[str]] = {"backends": frozenset({"tasks"})}
 
 
 def layer(module: str) -> str | None:
@@ -208,7 +212,8 @@ def layer_breaks(modules: Mapping[str, Path]) -> dict[str, list[str]]:
             continue
         allowed = LAYERS[own] | {own, None}
         wrong = sorted(
-            m for m in imported(name, modules) | loaded(name, modules) if layer(m) not in allowed
+            {m for m in imported(name, modules) if layer(m) not in allowed}
+            | {m for m in loaded(name, modules) if layer(m) not in allowed | LOADS.get(own, set())}
         )
         if wrong:
             found[name] = wrong

@@ -62,8 +62,8 @@ def test_the_project_registries():
     assert choices("mimicgen_pipe.run.executors") == ("local", "ray")
     assert choices("mimicgen_pipe.formats.exporters") == ("lerobot", "maniskill", "robomimic")
     assert choices("mimicgen_pipe.backends") == ("maniskill", "pybullet")
-    assert "stack_cube" in choices("mimicgen_pipe.backends.maniskill.tasks")
-    assert "stack" in choices("mimicgen_pipe.backends.pybullet.tasks")
+    assert "stack_cube" in choices("mimicgen_pipe.tasks.maniskill")
+    assert "stack" in choices("mimicgen_pipe.tasks.pybullet")
 
 
 def test_an_unknown_executor_is_refused_when_it_is_made():

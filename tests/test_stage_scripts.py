@@ -39,7 +39,8 @@ def test_every_stage_run_is_at_most_60_lines():
     assert set(STAGES) <= set(lengths), "a stage without a run function"
     too_long = {stage: n for stage, n in lengths.items() if n > MAX_RUN_LINES}
     assert not too_long, (
-        f"run longer than {MAX_RUN_LINES} lines: {too_long}; move logic to mimicgen_pipe"
+        f"run longer than {MAX_RUN_LINES} lines: {too_long}; "
+        "move logic into a layer (mimicgen_pipe/<layer>/)"
     )
 
 

@@ -61,7 +61,7 @@ def test_task_docstring_has_maniskills_headings_and_the_specs_subtasks(backend, 
     opening with its name and naming its reference object, its term signal (or that the demo
     ends it) and, with two arms, its arm."""
     spec = backends.task_spec(backend, task)
-    module = importlib.import_module(f"mimicgen_pipe.backends.{backend}.tasks.{task}")
+    module = importlib.import_module(f"mimicgen_pipe.tasks.{backend}.{task}")
     sections = _sections(inspect.cleandoc(module.__doc__ or ""))
     assert tuple(sections) == HEADINGS, module.__file__
     variants = {b.split(maxsplit=1)[0].rstrip(":") for b in _bullets(sections["Randomizations"])}
@@ -132,8 +132,8 @@ def test_a_task_frame_carries_the_source_scenes_hole_into_another_scene():
     source demos' scene its pose is the actor's, bit for bit; in O1's scene, where ManiSkill
     put the hole 2-4 cm elsewhere in the box, the reported pose puts the source scene's hole
     offset exactly onto O1's hole, so an insertion carried in the box's frame follows it."""
-    from mimicgen_pipe.backends.maniskill.tasks.peg_insertion import hole_frame
     from mimicgen_pipe.core.poses import pose_from_pq
+    from mimicgen_pipe.tasks.maniskill.peg_insertion import hole_frame
 
     env = backends.make_env("maniskill", "peg_insertion")
     try:
@@ -193,7 +193,7 @@ def test_a_task_with_geometry_of_its_own_has_its_own_env_and_leaves_its_base_as_
     same process, keeps ManiSkill's 3 mm, and the square task's demonstrator records in the
     square task's env."""
     from mimicgen_pipe.backends.maniskill.source import demo_env_id
-    from mimicgen_pipe.backends.maniskill.tasks.peg_insertion_square import SQUARE_CLEARANCE
+    from mimicgen_pipe.tasks.maniskill.peg_insertion_square import SQUARE_CLEARANCE
 
     square, stock = (
         backends.make_env("maniskill", t) for t in ("peg_insertion_square", "peg_insertion")
@@ -218,7 +218,7 @@ def test_a_task_with_geometry_of_its_own_has_its_own_env_and_leaves_its_base_as_
 def test_stack_tower_counts_a_cube_on_another_only_at_one_cube_height():
     """stack_tower's "on" test (StackCube-v1's): centres within the half diagonal + 5 mm in
     xy and 4 cm ± 5 mm apart in z; A beside B (the pyramid's first step) is not on it."""
-    from mimicgen_pipe.backends.maniskill.tasks.stack_tower import HALF, _signals, on
+    from mimicgen_pipe.tasks.maniskill.stack_tower import HALF, _signals, on
 
     b = np.array([0.05, -0.02, HALF], np.float32)
     up = np.array([0.0, 0.0, 2 * HALF], np.float32)
@@ -241,7 +241,7 @@ def test_stack_tower_reports_its_own_success_in_the_pyramids_scene():
     from mani_skill.utils.structs.pose import Pose
 
     from mimicgen_pipe.backends.maniskill.source import demo_env_id
-    from mimicgen_pipe.backends.maniskill.tasks.stack_tower import HALF
+    from mimicgen_pipe.tasks.maniskill.stack_tower import HALF
 
     up, aside = np.array([0, 0, 2 * HALF], np.float32), np.array([2 * HALF + 0.003, 0, 0])
     arrangements = {"tower": (up, 2 * up), "pyramid": (aside, aside / 2 + up)}

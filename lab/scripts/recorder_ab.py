@@ -1,8 +1,8 @@
 """Two versions of the generator's recording, interleaved block by block in one process on
 the same StackCube attempts: seconds per attempt and the generator's overhead of each.
 
-    git worktree add /tmp/before <rev>
-    .venv/bin/python lab/scripts/recorder_ab.py /tmp/before/mimicgen_pipe/generation.py \
+    git worktree add /tmp/before <rev>   # a revision with the layered package (method/)
+    .venv/bin/python lab/scripts/recorder_ab.py /tmp/before/mimicgen_pipe/method/generation.py \
         [--blocks 10] [--variant D0]
 
 The other version's generation.py is loaded beside this tree's (the rest of the library is

@@ -32,11 +32,11 @@ import torch
 from _followed import Followed
 
 from mimicgen_pipe import backends
-from mimicgen_pipe.backends.maniskill.tasks.stack_pyramid import NEAR
 from mimicgen_pipe.data.params import load_params
 from mimicgen_pipe.learn.evaluation import EPISODES_PER_BLOCK, evaluation_seed, rollout
 from mimicgen_pipe.learn.policy import COMPONENTS
 from mimicgen_pipe.learn.training import load_rollout_policy
+from mimicgen_pipe.tasks.maniskill.stack_pyramid import NEAR
 
 TASK = "stack_pyramid"
 HIGH = 0.01  # [m] A let go this far above B's height or more: dropped, not set down

@@ -1,9 +1,9 @@
 """Simulator back ends behind the contracts of mimicgen_pipe/core/contracts.py: each back end is a
 package ``mimicgen_pipe/backends/<backend>/`` implementing ``contracts.Backend``, a choice of the
-registry ``mimicgen_pipe.backends`` (mimicgen_pipe.core.registry); a module here whose name starts
-with ``_`` is shared by back ends and is none. The functions here choose a back end by name through
-that registry and check what is asked of it before any simulator starts. Imports only core:
-the rest of the package reaches a back end through these functions and the contracts.
+registry ``mimicgen_pipe.backends`` (mimicgen_pipe.core.registry), its tasks under
+mimicgen_pipe/tasks/<backend>/. The functions here choose a back end by name through that registry
+and check what is asked of it before any simulator starts. Imports only core: the rest of the
+package reaches a back end through these functions and the contracts.
 """
 
 from __future__ import annotations
@@ -34,13 +34,13 @@ def backend_package(backend: str) -> types.ModuleType:
 
 
 def task_names(backend: str) -> tuple[str, ...]:
-    """The tasks ``backend`` has: the files in mimicgen_pipe/backends/<backend>/tasks/."""
+    """The tasks ``backend`` has: the files in mimicgen_pipe/tasks/<backend>/."""
     return backend_package(backend).task_names()
 
 
 def load_task(backend: str, name: str):
     """The back end's task object (``TASK``) defined in
-    mimicgen_pipe/backends/<backend>/tasks/<name>.py; InputError for an unknown name."""
+    mimicgen_pipe/tasks/<backend>/<name>.py; InputError for an unknown name."""
     known = task_names(backend)
     if name not in known:
         raise InputError(
@@ -48,9 +48,7 @@ def load_task(backend: str, name: str):
         )
     task = backend_package(backend).load_task(name)
     if task.spec.name != name:
-        raise ValueError(
-            f"mimicgen_pipe/backends/{backend}/tasks/{name}.py defines task {task.spec.name!r}"
-        )
+        raise ValueError(f"mimicgen_pipe/tasks/{backend}/{name}.py defines task {task.spec.name!r}")
     return task
 
 

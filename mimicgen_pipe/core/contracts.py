@@ -58,7 +58,7 @@ class Env(Protocol):
     docs/extending.md, the env protocol); a back end's env implements all of it. All poses are 4x4
     homogeneous transforms in the world frame [m]."""
 
-    spec: TaskSpec  # the task (mimicgen_pipe/backends/<backend>/tasks/<task>.py)
+    spec: TaskSpec  # the task (mimicgen_pipe/tasks/<backend>/<task>.py)
     robot: str  # the arm's name, e.g. panda
     control_mode: str  # the action space, e.g. ManiSkill's pd_ee_delta_pose
     control_freq: int  # control steps per second [Hz]
@@ -204,8 +204,7 @@ class Renderer(Protocol):
 class Backend(Protocol):
     """A simulator back end: the package ``mimicgen_pipe/backends/<backend>/``, a choice of the
     registry ``mimicgen_pipe.backends`` (mimicgen_pipe.core.registry). Its ``__init__`` imports no
-    simulator (its other modules do, when an env is made). A module of ``mimicgen_pipe/backends/``
-    whose name starts with ``_`` is shared by back ends and is none.
+    simulator (its other modules do, when an env is made).
 
     Optionally a back end also defines
 
@@ -235,11 +234,11 @@ class Backend(Protocol):
         """The observation cameras (of mimicgen_pipe.backends.CAMERAS) that ``robot`` has there."""
 
     def task_names(self) -> tuple[str, ...]:
-        """Its tasks, one file each under ``mimicgen_pipe/backends/<backend>/tasks/`` (the choices
-        of the registry ``mimicgen_pipe.backends.<backend>.tasks``)."""
+        """Its tasks, one file each under ``mimicgen_pipe/tasks/<backend>/`` (the choices
+        of the registry ``mimicgen_pipe.tasks.<backend>``)."""
 
     def load_task(self, name: str) -> Any:
-        """The task object ``TASK`` of ``mimicgen_pipe/backends/<backend>/tasks/<name>.py``; its
+        """The task object ``TASK`` of ``mimicgen_pipe/tasks/<backend>/<name>.py``; its
         task spec is ``TASK.spec``."""
 
     def make_env(self, task: str, robot: str, lean_step: bool) -> Env:

@@ -4,7 +4,7 @@ sub-package) in it, looked up by its name.
 Adding a choice is adding one file to its package. The registries: selection strategies
 (``mimicgen_pipe.method.selection``), executors (``mimicgen_pipe.run.executors``), exporters
 (``mimicgen_pipe.formats.exporters``), simulator back ends (``mimicgen_pipe.backends``) and each
-back end's tasks (``mimicgen_pipe.backends.<backend>.tasks``); each package's docstring states what
+back end's tasks (``mimicgen_pipe.tasks.<backend>``); each package's docstring states what
 its modules define.
 
 Every call site names its package as a string literal (``load("mimicgen_pipe.formats.exporters",

@@ -1,7 +1,7 @@
 """Task specifications: the ordered object-centric subtasks of each arm, the constraints
 between two arms' subtasks, each reset variant's distribution, and what the task stands for
 in the paper. Free of simulator imports: a task file under
-``mimicgen_pipe/backends/<backend>/tasks/`` builds one of these."""
+``mimicgen_pipe/tasks/<backend>/`` builds one of these."""
 
 from __future__ import annotations
 

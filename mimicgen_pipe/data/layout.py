@@ -2,7 +2,7 @@
 names the same paths. A stage run with another pipeline's params file finds each top folder
 (data/, metrics/, ...) where that pipeline's dvc.yaml keeps it (:func:`pipelines.use_pipeline`),
 e.g. quickstart/data/. A stage run by hand, outside DVC, writes a default output that a
-pipeline tracks under :data:`SCRATCH` instead (``stages.output_path``)."""
+pipeline tracks under :data:`SCRATCH` instead (``mimicgen_pipe.stages.output_path``)."""
 
 from __future__ import annotations
 

@@ -122,8 +122,8 @@ class TrainParams:
     generated demos used (the first N kept episodes; the source policy uses every source
     demo). obs_keys: the policy's observation, keys of obs/ in the stores
     (mimicgen_pipe.core.observations); None: the task's own (its spec's default_obs_keys), filled
-    in by stages.stage_params. workers: trainings side by side (one process each) when a
-    stage trains several policies or seeds."""
+    in by mimicgen_pipe.stages.stage_params. workers: trainings side by side (one process each) when
+    a stage trains several policies or seeds."""
 
     profile: Literal["cpu", "paper", "cpu_image"] = "cpu"
     workers: int = 1

@@ -62,7 +62,7 @@ def train_config(train: TrainParams, data: TrainingData) -> TrainConfig:
     observation layout (train.obs_keys, in that order); device ``auto``: cuda when there is
     one."""
     p = train.active
-    assert train.obs_keys is not None  # stages.stage_params fills in the task's own
+    assert train.obs_keys is not None  # mimicgen_pipe.stages.stage_params fills in the task's own
     h, w = data.image_size
     images = (
         {
@@ -593,7 +593,7 @@ def policy_training(params: Params, name: str, store: Path) -> PolicyTraining:
     generated demos (:func:`load_training_data`, split with SPLIT_SEED); with the meta its
     checkpoints carry."""
     train, source = params.train, name == "source"
-    assert train.obs_keys is not None  # stages.stage_params fills in the task's own
+    assert train.obs_keys is not None  # mimicgen_pipe.stages.stage_params fills in the task's own
     data = load_training_data(
         store,
         train.obs_keys,

@@ -22,7 +22,7 @@ from pathlib import Path
 from mimicgen_pipe.core.errors import InputError
 
 # pipelines' dvc.yaml readers (_stages, _pipeline_files) are used as they are: an edit of
-# pipelines.py would change the code manifest of every stage (scripts/dvc_deps.py)
+# pipelines.py would re-run every stage (all depend on mimicgen_pipe/data)
 from mimicgen_pipe.data import pipelines
 
 INPUTS = "inputs"  # beside a pipeline's dvc.yaml: the folder its source stage tracks

@@ -1,4 +1,4 @@
-"""Stage scripts: argument parsing and I/O around the library (mimicgen_pipe). Imports any
+"""Stage scripts: argument parsing and I/O around the layers of mimicgen_pipe. Imports any
 layer: a stage composes them."""
 
 from __future__ import annotations

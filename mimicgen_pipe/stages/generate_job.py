@@ -8,7 +8,7 @@ Every refusal of a generate run is raised here, one line naming what is wrong (I
 exit status 2), in this order:
 
 1. the params file: keys, types, ranges, variant lists, obs keys, and --backend, --task,
-   --robot (stages.stage_params);
+   --robot (mimicgen_pipe.stages.stage_params);
 2. the options --attempts, --num-demos, --max-attempts, --action-noise against their keys'
    ranges, and against each other (:func:`with_generate_options`);
 3. the reset variant (backends.check_variant);
@@ -22,9 +22,9 @@ exit status 2), in this order:
    (runner.check_workspace; the one check that starts a simulator).
 
 The job's type lives here, beside the one function that builds it: resolving needs the
-back ends (mimicgen_pipe.backends), which the library never imports. The library's runner takes the
-job's parts: its :class:`~mimicgen_pipe.run.runner.AttemptJob` (what every worker is sent,
-picklable: no back-end package in it), seeds, executor and counts.
+back ends, which no layer below the stages imports. The runner takes the job's parts: its
+:class:`~mimicgen_pipe.run.runner.AttemptJob` (what every worker is sent, picklable: no back-end
+package in it), seeds, executor and counts.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """ManiSkill3 / SAPIEN back end (CPU PhysX, pd_ee_delta_pose); tasks one file each under
-mimicgen_pipe/backends/maniskill/tasks/. Imports no simulator: ManiSkill is imported when an env is
+mimicgen_pipe/tasks/maniskill/. Imports no simulator: ManiSkill is imported when an env is
 made."""
 
 from __future__ import annotations
@@ -39,12 +39,12 @@ def cameras(robot: str) -> tuple[str, ...]:
 
 
 def task_names() -> tuple[str, ...]:
-    return choices("mimicgen_pipe.backends.maniskill.tasks")
+    return choices("mimicgen_pipe.tasks.maniskill")
 
 
 def load_task(name: str):
-    """The ManiSkillTask ``TASK`` of mimicgen_pipe/backends/maniskill/tasks/<name>.py."""
-    return load("mimicgen_pipe.backends.maniskill.tasks", name).TASK
+    """The ManiSkillTask ``TASK`` of mimicgen_pipe/tasks/maniskill/<name>.py."""
+    return load("mimicgen_pipe.tasks.maniskill", name).TASK
 
 
 def make_env(task: str, robot: str = "panda", lean_step: bool = True):

@@ -1,5 +1,5 @@
 """Replaying stored episodes in ManiSkill for its trajectory format
-(mimicgen_pipe.formats.exporters. maniskill): the state after every step, the task's success, and
+(mimicgen_pipe.formats.exporters.maniskill): the state after every step, the task's success, and
 the same motion as ``pd_joint_pos`` actions.
 
 A ``pd_ee_delta_pose`` step solves IK for the arm and sets the result as the joints' PD drive

@@ -1,6 +1,6 @@
 """PyBullet back end (headless DIRECT, 20 Hz end-effector delta-pose control); arms from
 pybullet_data with the Franka hand (mimicgen_pipe/backends/pybullet/robots.py); tasks one file each
-under mimicgen_pipe/backends/pybullet/tasks/."""
+under mimicgen_pipe/tasks/pybullet/."""
 
 from __future__ import annotations
 
@@ -26,12 +26,12 @@ def cameras(robot: str) -> tuple[str, ...]:
 
 
 def task_names() -> tuple[str, ...]:
-    return choices("mimicgen_pipe.backends.pybullet.tasks")
+    return choices("mimicgen_pipe.tasks.pybullet")
 
 
 def load_task(name: str):
-    """The PyBulletTask ``TASK`` of mimicgen_pipe/backends/pybullet/tasks/<name>.py."""
-    return load("mimicgen_pipe.backends.pybullet.tasks", name).TASK
+    """The PyBulletTask ``TASK`` of mimicgen_pipe/tasks/pybullet/<name>.py."""
+    return load("mimicgen_pipe.tasks.pybullet", name).TASK
 
 
 def make_env(task: str, robot: str = "panda", lean_step: bool = True):

@@ -1,6 +1,6 @@
-"""PyBullet tasks, one file each in this folder (``<task>.py`` defines ``TASK``, a
-PyBulletTask); this module holds what they share (mimicgen_pipe.backends.load_task finds them by
-name). Free of simulator imports.
+"""What the PyBullet tasks share. Each task is one file under mimicgen_pipe/tasks/pybullet/
+(``<task>.py`` defines ``TASK``, a PyBulletTask), found by name (mimicgen_pipe.backends.load_task).
+Free of simulator imports.
 
 World frame: z up, the table top is the plane z = 0, every robot base sits at
 ``ROBOT_BASE_XY`` on it facing +x. Object poses are their body frames (box centres; a

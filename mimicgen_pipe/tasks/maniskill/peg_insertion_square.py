@@ -6,7 +6,7 @@ peg_insertion's task with the clearance of robosuite's Square, 6.75 mm between p
 on each side, where ManiSkill's PegInsertionSide leaves 3 mm. Square's square peg is 3.2 cm
 across and its nut's hole 4.55 cm (robosuite's square-nut.xml); here the same 17.1 cm peg of
 radius 2.0 cm goes into a hole of radius 2.675 cm. Everything else is peg_insertion's
-(mimicgen_pipe/backends/maniskill/tasks/peg_insertion.py): the peg, the box, the subtasks, the
+(mimicgen_pipe/tasks/maniskill/peg_insertion.py): the peg, the box, the subtasks, the
 success test, reset variants D0-D2 and the horizon. peg_insertion stays ManiSkill's harder
 benchmark; this one compares with the paper's Square row.
 
@@ -39,7 +39,7 @@ from __future__ import annotations
 import dataclasses
 
 from mimicgen_pipe.backends.maniskill.tasks import ManiSkillTask
-from mimicgen_pipe.backends.maniskill.tasks.peg_insertion import TASK as PEG_INSERTION
+from mimicgen_pipe.tasks.maniskill.peg_insertion import TASK as PEG_INSERTION
 
 SQUARE_CLEARANCE = 0.00675  # [m] on each side: (4.55 - 3.2) cm / 2, robosuite's Square
 

@@ -1,6 +1,6 @@
-"""ManiSkill tasks, one file each in this folder (``<task>.py`` defines ``TASK``, a
-ManiSkillTask); this module holds what they share (mimicgen_pipe.backends.load_task finds them by
-name). Free of simulator imports: a task file imports ManiSkill only inside its functions.
+"""What the ManiSkill tasks share. Each task is one file under mimicgen_pipe/tasks/maniskill/
+(``<task>.py`` defines ``TASK``, a ManiSkillTask), found by name (mimicgen_pipe.backends.load_task).
+Free of simulator imports: a task file imports ManiSkill only inside its functions.
 
 World frame: ManiSkill's, the table top is z = 0 with its centre at the origin; the Panda's
 base is at ``task.robot_base_xy``.

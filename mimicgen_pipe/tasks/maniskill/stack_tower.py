@@ -7,7 +7,7 @@ StackPyramid-v1 scene, with three 4 cm cubes. Robosuite's B is 5 cm; here it is 
 the others.
 
 The demonstrator plans with stack_pyramid's grasp and place motions
-(mimicgen_pipe/backends/maniskill/tasks/stack_pyramid.py). A goes on B's centre, turned to B's yaw;
+(mimicgen_pipe/tasks/maniskill/stack_pyramid.py). A goes on B's centre, turned to B's yaw;
 C goes on A's.
 
 **Randomizations:**
@@ -46,14 +46,14 @@ from __future__ import annotations
 import numpy as np
 
 from mimicgen_pipe.backends.maniskill.tasks import FULL_YAW, PANDA_REACH, ManiSkillTask
-from mimicgen_pipe.backends.maniskill.tasks.stack_pyramid import (
+from mimicgen_pipe.core.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
+from mimicgen_pipe.tasks.maniskill.stack_pyramid import (
     HALF,
     OBJECTS,
     grasp,
     panda_planner,
     place,
 )
-from mimicgen_pipe.core.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
 
 F32 = np.float32
 # StackCube-v1's "on" test: centres within the half diagonal + 5 mm in xy, 2 * HALF apart in z
