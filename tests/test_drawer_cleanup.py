@@ -34,7 +34,7 @@ def test_the_spec_chains_six_subtasks_the_drawer_ones_relative_to_the_drawer():
 def test_the_drawer_signals_wait_for_the_hand_to_leave_the_handle():
     """drawer_open and drawer_closed hold only with the handle let go and the hand CLEAR from
     it, so that the straight transit to the next subtask starts away from the drawer."""
-    from mimicgen_pipe.backends.maniskill.tasks import drawer_cleanup as task
+    from mimicgen_pipe.tasks.maniskill import drawer_cleanup as task
 
     turned = np.array([np.cos(0.15), 0.0, 0.0, np.sin(0.15)], np.float32)  # yaw 0.3 rad
     drawer = (np.array([0.02, 0.2, 0.0], np.float32), turned)
