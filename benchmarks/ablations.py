@@ -26,8 +26,8 @@ from typing import Any
 
 import yaml
 
-from mimicgen_pipe import layout
-from mimicgen_pipe.params import load_params
+from mimicgen_pipe.data import layout
+from mimicgen_pipe.data.params import load_params
 
 # name -> (what it measures, params overrides)
 RUNS: dict[str, tuple[str, dict[str, Any]]] = {

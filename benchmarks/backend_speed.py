@@ -15,10 +15,10 @@ import time
 
 import numpy as np
 
-import envs
-from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.run.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 
 BACKENDS = {
     "maniskill": ("stack_cube", "data/pose_noise/stack_cube.zarr"),
@@ -43,7 +43,7 @@ def main() -> None:
     args = p.parse_args()
     runs = {}
     for backend, (task, store_path) in BACKENDS.items():
-        env = envs.make_env(backend, task, "panda")
+        env = backends.make_env(backend, task, "panda")
         store = read_store(store_path, ["target_pose"])
         runs[backend] = (env, source_demos(store, env.spec.objects), [], [], [])
     seeds = [attempt_seed(0, args.variant, i) for i in range(args.attempts)]

@@ -1,4 +1,4 @@
-"""The batched attempt engine (mimicgen_pipe.batched) against the one-at-a-time path, on the
+"""The batched attempt engine (mimicgen_pipe.method.batched) against the one-at-a-time path, on the
 CPU: the same StackCube attempts run one at a time on one env and on a lockstep batch of
 ``--num-envs`` CPU envs in one process, alternating block by block on rebuilt scenes so that
 machine load falls on both alike; seconds per attempt, their ratio, and whether every
@@ -20,11 +20,11 @@ import time
 import numpy as np
 from _machine import figures_path, machine
 
-import envs
-from mimicgen_pipe.batched import LockstepBatch, run_batched
-from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.batched import LockstepBatch, run_batched
+from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.run.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 
 TASK = "stack_cube"
 OUT = figures_path(__file__)
@@ -37,11 +37,11 @@ def main() -> None:
     p.add_argument("--variant", default="D0")
     p.add_argument("--parsed", default=f"data/pose_noise/{TASK}.zarr")
     args = p.parse_args()
-    spec = envs.task_spec("maniskill", TASK)
+    spec = backends.task_spec("maniskill", TASK)
     sources = source_demos(read_store(args.parsed, ["target_pose"]), spec.objects)
     config = GenerationConfig()
-    one = envs.make_env("maniskill", TASK)
-    batch = LockstepBatch(tuple(envs.make_env("maniskill", TASK) for _ in range(args.num_envs)))
+    one = backends.make_env("maniskill", TASK)
+    batch = LockstepBatch(tuple(backends.make_env("maniskill", TASK) for _ in range(args.num_envs)))
     seeds = [attempt_seed(0, args.variant, i) for i in range(args.attempts)]
     seconds = {"one_at_a_time": 0.0, "batched": 0.0}
     alone, together = [], []

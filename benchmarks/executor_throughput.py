@@ -32,18 +32,18 @@ from pathlib import Path
 import numpy as np
 from _machine import figures_path, machine
 
-import envs
-from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.generation import Attempt, GenerationConfig
-from mimicgen_pipe.resume import WorkDir
-from mimicgen_pipe.runner import (
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.generation import Attempt, GenerationConfig
+from mimicgen_pipe.run.executors import Executor
+from mimicgen_pipe.run.resume import WorkDir
+from mimicgen_pipe.run.runner import (
     AttemptBlockCodec,
     AttemptJob,
     attempt_seed,
     run_attempts,
     source_demos,
 )
-from mimicgen_pipe.store import read_store
 
 OUT = figures_path(__file__)
 
@@ -115,9 +115,9 @@ def main() -> None:
     p.add_argument("--max-workers", type=int, default=os.cpu_count() or 1)
     p.add_argument("--two-raylets-to", type=Path, help=argparse.SUPPRESS)  # the child's run
     args = p.parse_args()
-    spec = envs.task_spec("maniskill", "stack_cube")
+    spec = backends.task_spec("maniskill", "stack_cube")
     job = AttemptJob(
-        make_env=functools.partial(envs.make_env, "maniskill", "stack_cube", "panda"),
+        make_env=functools.partial(backends.make_env, "maniskill", "stack_cube", "panda"),
         sources=source_demos(read_store(args.parsed, kind="parsed"), spec.objects),
         spec=spec,
         config=GenerationConfig(),
@@ -133,7 +133,7 @@ def main() -> None:
         return
     import ray
 
-    from mimicgen_pipe.executors.ray import _connect
+    from mimicgen_pipe.run.executors.ray import _connect
 
     runs: list[dict] = []
     reference: list[str] = []

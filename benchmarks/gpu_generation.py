@@ -24,13 +24,13 @@ from pathlib import Path
 import torch
 from _machine import figures_path, machine
 
-import envs
-from mimicgen_pipe.batched import replay_batched, run_batched
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe import backends
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.batched import replay_batched, run_batched
+from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.run.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 
 OUT = figures_path(__file__)
 VARIANT = "D0"
@@ -51,7 +51,7 @@ def config(task: str, spec) -> GenerationConfig:
 
 def cpu_path(task: str, sources, spec, seeds: list[int]) -> dict:
     """The one-at-a-time path: lean step, blocks on rebuilt scenes, as a generate worker."""
-    env = envs.make_env("maniskill", task)
+    env = backends.make_env("maniskill", task)
     successes, t0 = 0, time.perf_counter()
     for b in range(0, len(seeds), ATTEMPTS_PER_BLOCK):
         env.rebuild()
@@ -74,7 +74,7 @@ def batched_path(
     ``replays`` kept demos replayed on the same batch."""
     seeds = [attempt_seed(0, VARIANT, i) for i in range(attempts)]
     t0 = time.perf_counter()
-    batch = envs.make_batch_env("maniskill", task, "panda", n, sim_backend)
+    batch = backends.make_batch_env("maniskill", task, "panda", n, sim_backend)
     build = time.perf_counter() - t0
     t0 = time.perf_counter()
     ended = dict(run_batched(batch, sources, spec, config(task, spec), VARIANT, seeds))
@@ -110,13 +110,13 @@ def main() -> None:
     args = p.parse_args()
     for n in args.num_envs:  # every refusal before any work
         for task in args.tasks:
-            envs.check_batched("maniskill", task, "panda", n, args.sim_backend, "linear")
+            backends.check_batched("maniskill", task, "panda", n, args.sim_backend, "linear")
     device = machine()
     if args.sim_backend == "physx_cuda":
         device |= {"device": "cuda", "gpu": torch.cuda.get_device_name(0)}
     rows = []
     for task in args.tasks:
-        spec = envs.task_spec("maniskill", task)
+        spec = backends.task_spec("maniskill", task)
         sources = source_demos(read_store(parsed_store(task), ["target_pose"]), spec.objects)
         cpu_seeds = [attempt_seed(0, VARIANT, i) for i in range(args.cpu_attempts)]
         cpu = cpu_path(task, sources, spec, cpu_seeds)

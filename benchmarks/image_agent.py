@@ -37,8 +37,8 @@ import numpy as np
 import yaml
 from _machine import figures_path, machine
 
-from mimicgen_pipe.metrics import timings_file
-from mimicgen_pipe.store import open_store
+from mimicgen_pipe.data.metrics import timings_file
+from mimicgen_pipe.data.store import open_store
 
 REPO = Path(__file__).resolve().parent.parent
 LEARNERS = REPO / ".venv-learners" / "bin" / "python"

@@ -36,12 +36,12 @@ import yaml
 from _machine import figures_path, machine
 from _official import NOT_MEASURED, official_venv, run_official
 
-import envs
-from mimicgen_pipe.evaluation import evaluation_seed, rollout
-from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.metrics import timings_file
-from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.metrics import timings_file
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.learn.evaluation import evaluation_seed, rollout
+from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.run.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 
 TASK = "stack_cube"
 OUT = figures_path(__file__)
@@ -87,7 +87,7 @@ def raw_stepping(env, attempts, variant: str, floor: bool = False) -> tuple[floa
 
 
 def evaluation(env, policy_path: str, episodes: int, variant: str) -> tuple[float, list]:
-    from mimicgen_pipe.training import load_rollout_policy
+    from mimicgen_pipe.learn.training import load_rollout_policy
 
     policy = load_rollout_policy(policy_path)
     spec = env.spec
@@ -139,10 +139,12 @@ def main() -> None:
     if not Path(args.parsed).exists():
         sys.exit(f"{args.parsed}: no parsed store (dvc repro pose_noise makes it)")
     official_before = official(args.official_attempts)
-    spec = envs.task_spec("maniskill", TASK)
+    spec = backends.task_spec("maniskill", TASK)
     sources = source_demos(read_store(args.parsed, ["target_pose"]), spec.objects)
     paths = {"stock": False, "lean": True}
-    env = {name: envs.make_env("maniskill", TASK, lean_step=lean) for name, lean in paths.items()}
+    env = {
+        name: backends.make_env("maniskill", TASK, lean_step=lean) for name, lean in paths.items()
+    }
     seeds = [attempt_seed(0, args.variant, i) for i in range(args.attempts)]
     seconds = dict.fromkeys(paths, 0.0)
     rebuilds = dict.fromkeys(paths, 0.0)

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-import envs
-from mimicgen_pipe.store import store_writer
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.store import store_writer
 
 BACKENDS = {"maniskill": "stack_cube", "pybullet": "stack"}
 CAMERA_SETS = (("agentview",), ("eye_in_hand",), ("agentview", "eye_in_hand"))
@@ -33,7 +33,7 @@ SHADERS = {"maniskill": ("default", "minimal"), "pybullet": ("tiny_renderer",)}
 
 def random_states(backend: str, task: str, episodes: int, steps: int) -> np.ndarray:
     """(episodes * steps, state dim) stored states of random arm motions from D0 scenes."""
-    env = envs.make_env(backend, task, "panda")
+    env = backends.make_env(backend, task, "panda")
     rng = np.random.default_rng(0)
     states = []
     for k in range(episodes):
@@ -48,10 +48,10 @@ def random_states(backend: str, task: str, episodes: int, steps: int) -> np.ndar
 
 def renderer(backend: str, task: str, size: int, cameras: tuple[str, ...], shader: str):
     if backend == "maniskill":
-        from envs.maniskill.render import Renderer
+        from mimicgen_pipe.backends.maniskill.render import Renderer
 
         return Renderer(task, "panda", size, size, cameras, shader=shader)
-    from envs.pybullet.render import Renderer
+    from mimicgen_pipe.backends.pybullet.render import Renderer
 
     return Renderer(task, "panda", size, size, cameras)
 

@@ -19,18 +19,18 @@ import time
 import numpy as np
 from _machine import figures_path
 
-import envs
-from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
-from mimicgen_pipe.store import read_store
-from mimicgen_pipe.transit import PlannerSettings
+from mimicgen_pipe import backends
+from mimicgen_pipe.core.transit import PlannerSettings
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.run.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 
 CELLS = (("stack_cube_wall", "wall"), ("stack_cube_wall", "D0"), ("pull_cube_tool", "D0"))
 OUT = figures_path(__file__)
 
 
 def measure(task: str, variant: str, attempts: int) -> dict:
-    env = envs.make_env("maniskill", task, "panda")
+    env = backends.make_env("maniskill", task, "panda")
     store = read_store(f"data/transit/parsed/{task}.zarr", ["target_pose"])
     sources = source_demos(store, env.spec.objects)
     plan = env.plan_transit

@@ -14,7 +14,7 @@ random values, so they compress worse than real ones: a 1,000-episode store is ~
 on disk against the real ~43 MB). They are written once into ``--dir`` and kept there.
 
 Each case runs in a fresh process: after its imports the kernel's peak-RSS mark is reset
-(/proc/self/clear_refs), then mimicgen_pipe.training.load_training_data runs as the train
+(/proc/self/clear_refs), then mimicgen_pipe.learn.training.load_training_data runs as the train
 stage calls it; the figure is the peak (VmHWM) minus the resident memory before the call.
 A first load of 2 demos runs before it, paying the once-per-process costs (zarr's event
 loop, Arrow's decoder: ~9 MB), which are printed apart as "fixed".
@@ -38,8 +38,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from mimicgen_pipe.observations import observation_dims  # noqa: E402
-from mimicgen_pipe.store import write_store  # noqa: E402
+from mimicgen_pipe.core.observations import observation_dims  # noqa: E402
+from mimicgen_pipe.data.store import write_store  # noqa: E402
 
 OBJECTS = ("cubeA", "cubeB")
 STATE_WIDTH = 70  # ManiSkill StackCube's flat env state (actors and the arm), float32
@@ -129,8 +129,8 @@ def _status(field: str) -> int:
 def _read_store_then_split(path: Path, keys: list[str], num_demos: int) -> tuple:
     """What the train stage did before partial reads: the whole store in memory, then the
     observations concatenated and split."""
-    from mimicgen_pipe.store import read_store
-    from mimicgen_pipe.training import SequenceData, split_episodes, subset
+    from mimicgen_pipe.data.store import read_store
+    from mimicgen_pipe.learn.training import SequenceData, split_episodes, subset
 
     store = read_store(path, required=["actions"], kind="generated")
     keep = np.flatnonzero(store.episodes["success"])[:num_demos]
@@ -152,7 +152,7 @@ def measure(path: Path, num_demos: int, reader: str) -> dict[str, float]:
     import pyarrow  # noqa: F401  (imported by the partial reader: a fixed cost, not data)
     import torch  # noqa: F401  (the train stage has it loaded)
 
-    from mimicgen_pipe.training import load_training_data
+    from mimicgen_pipe.learn.training import load_training_data
 
     keys = list(observation_dims(OBJECTS))
 

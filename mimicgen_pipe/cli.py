@@ -15,14 +15,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from mimicgen_pipe import arithmetic
+from mimicgen_pipe.run import arithmetic
 
 # before anything imports numpy or torch (outputs does): the same bytes on any x86-64 CPU type
 UNPINNED = arithmetic.pin()
 
-from mimicgen_pipe import outputs  # noqa: E402
-from mimicgen_pipe.errors import InputError, StageError, one_line  # noqa: E402
-from mimicgen_pipe.interrupts import Interrupted, as_exceptions  # noqa: E402
+from mimicgen_pipe.core.errors import InputError, StageError, one_line  # noqa: E402
+from mimicgen_pipe.core.interrupts import Interrupted, as_exceptions  # noqa: E402
+from mimicgen_pipe.data import outputs  # noqa: E402
 
 STAGES = {
     "check": "validate a pipeline's params file and the files it names (its first stage)",
@@ -96,7 +96,7 @@ def build_parser(only: str | None = None) -> tuple[argparse.ArgumentParser, dict
         if only is not None and name != only:
             sub.add_parser(name, help=help_text)  # listed in --help, never parsed
             continue
-        module = importlib.import_module(f"stages.{name}")
+        module = importlib.import_module(f"mimicgen_pipe.stages.{name}")
         modules[name] = module
         stage_parser = sub.add_parser(name, help=help_text, description=module.__doc__)
         module.add_arguments(stage_parser)
@@ -127,7 +127,7 @@ def check_params_first(argv: list[str]) -> None:
     given = params_file_given(argv)
     path = Path(given if given is not None else "params.yaml")
     if given is not None or path.is_file():
-        from mimicgen_pipe.params import load_params
+        from mimicgen_pipe.data.params import load_params
 
         load_params(path)
 
@@ -142,7 +142,7 @@ def _run_stage(argv: list[str]) -> int:
         return 2
     parser, modules = build_parser(only=stage)
     args = parser.parse_args(argv)
-    from stages import check_path_names
+    from mimicgen_pipe.stages import check_path_names
 
     try:
         check_path_names(args)

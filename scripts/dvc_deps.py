@@ -1,25 +1,28 @@
-"""The code deps of every DVC stage: exactly the project files its command runs from, so
-that editing a file re-runs the stages that import it and no other.
+"""The code deps of every DVC stage: the layers of mimicgen_pipe (folders) and the files
+its command runs from, so that editing a layer re-runs the stages that import it and no
+other, and a reader of dvc.yaml sees what each stage runs from.
 
-Each pipeline's first stage, ``code_deps``, depends on the project's packages as folders and
-writes one manifest per stage, ``<pipeline folder>/code_deps/<stage>.txt``: the md5 and path
-of every file that stage runs from. Each stage depends on its own manifest. An edit anywhere
-re-runs ``code_deps`` (about a second); DVC then re-runs only the stages whose manifest
-changed, so the pipelines stay short and the deps stay exact.
+    python scripts/dvc_deps.py --check   # exit 1 naming each stage whose deps differ
+    python scripts/dvc_deps.py --write   # rewrite the code deps in every dvc.yaml
 
-    python scripts/dvc_deps.py --manifests suite/dvc.yaml   # the code_deps stage's command
-    python scripts/dvc_deps.py --check   # exit 1 naming what differs (tests run this)
-    python scripts/dvc_deps.py --write   # write every pipeline's manifests
+A stage ``mimicgen-pipe <stage> ...`` runs from ``mimicgen_pipe/stages/<stage>.py``, the CLI's
+arithmetic pins (``mimicgen_pipe/run/arithmetic.py``: they decide the outputs' last bits),
+every project module it imports (transitively, imports inside functions included), and every
+module of a registry package it loads from by a name known at run time
+(``registry.load("<package>", name)``; a literal name: that module only; see
+mimicgen_pipe/core/registry.py). Under ``mimicgen_pipe/backends/`` only the stage's back end is
+followed (the ``--backend`` its command passes, else the pipeline's ``backend`` param), and
+under ``mimicgen_pipe/tasks/`` only the task files the stage runs (its ``--task``, else the
+``task`` param; each task of its matrix) and what they import. Its code deps are then: each
+layer folder holding one of those modules (``mimicgen_pipe/core``, ...), its back end's
+folder, its task's file by template (``mimicgen_pipe/tasks/${backend}/${task}.py``), and the
+other files one by one (the stage modules, the packages' ``__init__.py``, the file of a task
+that its task is made from), so that editing one task's file re-runs that task's stages.
 
-A stage ``mimicgen-pipe <stage> ...`` runs from ``stages/<stage>.py``, the CLI's arithmetic
-pins (``mimicgen_pipe/arithmetic.py``: they decide the outputs' last bits), every project
-module it imports (transitively, imports inside functions included), and every module of a
-registry package it loads from by a name known at run time (``registry.load("<package>",
-name)``; a literal name: that module only; see mimicgen_pipe/registry.py). Under ``envs/``
-only the stage's back end is followed (the ``--backend`` its command passes, else the
-pipeline's ``backend`` param). Task files are looked up by name at run time; each stage lists
-its own task file as a templated dep (``envs/<backend>/tasks/${task}.py``), which stays in
-dvc.yaml, and its manifest follows what those task files import.
+Each pipeline's first stage, ``check``, validates the whole params file (``mimicgen-pipe
+check``) and writes ``<params file>.checked``, a constant line, on which every other stage
+depends: DVC runs it first, so that a bad value stops ``dvc repro`` before any stage's
+outputs are removed, and its unchanged line re-runs nothing.
 """
 
 from __future__ import annotations
@@ -27,7 +30,6 @@ from __future__ import annotations
 import argparse
 import ast
 import functools
-import hashlib
 import os
 import re
 import sys
@@ -37,17 +39,13 @@ from pathlib import Path
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("mimicgen_pipe", "envs", "stages")
+PACKAGES = ("mimicgen_pipe",)
 PIPELINES = (
     "dvc.yaml",
     "suite/dvc.yaml",
     "quickstart/dvc.yaml",
     "transit/dvc.yaml",
     "transfer/dvc.yaml",
-)
-# a project .py file, or a task file by template: what a manifest holds
-TASK_OR_CODE = re.compile(
-    r"^(\.\./)?((mimicgen_pipe|envs|stages)/[^$]*|envs/[^/]+/tasks/\$\{[\w.]+\})\.py$"
 )
 
 
@@ -95,7 +93,7 @@ def imported_modules(path: Path) -> set[str]:
             name = node.args[1] if len(node.args) > 1 else None
             if isinstance(name, ast.Constant) and isinstance(name.value, str):
                 out.add(f"{loaded}.{name.value}")  # one named module of the registry
-            elif not loaded.endswith(".tasks"):  # task files: the stage's templated dep
+            elif not loaded.startswith("mimicgen_pipe.tasks."):  # tasks: the stage's own dep
                 out.update(package_modules(loaded))
     return {m for m in out if module_file(m) is not None}
 
@@ -115,16 +113,18 @@ def _loads_from(call: ast.Call) -> bool:
 def closure(stage_module: str, backend: str, tasks: Iterable[str] = ()) -> set[Path]:
     """Files a stage's code runs from: its module, the packages it sits in, what the
     ``tasks`` it runs import, and everything they import, following only ``backend``'s
-    package under envs/. The task files themselves are not included."""
-    backends = {p.parent.name for p in (REPO / "envs").glob("*/__init__.py")}
-    roots = [f"envs.{backend}.tasks.{t}" for t in tasks]
+    package under mimicgen_pipe/backends/. The task files themselves are not included."""
+    backends = {p.parent.name for p in (REPO / "mimicgen_pipe/backends").glob("*/__init__.py")}
+    roots = [f"mimicgen_pipe.tasks.{backend}.{t}" for t in tasks]
     # the CLI pins the numeric libraries' code paths before any stage runs (cli.py)
-    todo = [stage_module, "stages", "mimicgen_pipe.arithmetic", *roots]
+    todo = [stage_module, "mimicgen_pipe.stages", "mimicgen_pipe.run.arithmetic", *roots]
     seen: set[str] = set()
     while todo:
         name = todo.pop()
         parts = name.split(".")
-        other_backend = parts[0] == "envs" and len(parts) > 1 and parts[1] in backends - {backend}
+        other_backend = parts[:2] == ["mimicgen_pipe", "backends"] and (
+            len(parts) > 2 and parts[2] in backends - {backend}
+        )
         if name in seen or other_backend:
             continue
         seen.add(name)
@@ -183,139 +183,199 @@ def stage_code(stage: dict, params: dict) -> tuple[str, str, list[str]]:
         tasks = []
     else:
         tasks = [words[words.index("--task") + 1]] if "--task" in words else [params["task"]]
-    return f"stages.{words[1]}", backend, tasks
+    return f"mimicgen_pipe.stages.{words[1]}", backend, tasks
 
 
-MANIFESTS = "code_deps"  # per pipeline folder: one manifest per stage
-CODE_STAGE = "code_deps"
-
-
-def manifest(files: Iterable[Path]) -> str:
-    """``<md5>  <path>`` per file (paths from the repository root), sorted by path."""
-    return "".join(
-        f"{hashlib.md5((REPO / f).read_bytes()).hexdigest()}  {f.as_posix()}\n"
-        for f in sorted(files)
-    )
+LAYERS = ("core", "method", "data", "run", "sources", "learn", "media", "formats", "report")
+# (the back ends and the tasks are folders per back end and files per task: see dep_of)
+CHECK_STAGE = "check"
 
 
 def task_file(backend: str, task: str) -> Path:
-    return Path("envs", backend, "tasks", f"{task}.py")
+    return Path("mimicgen_pipe", "tasks", backend, f"{task}.py")
 
 
-def manifests(pipeline: Path) -> dict[Path, str]:
-    """Manifest path -> text, for every stage of ``pipeline`` but the code stage itself. A
-    stage with a matrix over tasks has one manifest per task, ``<stage>/<task>.txt``, so that
-    editing one task's file re-runs that task's stages only."""
-    doc = yaml.safe_load(pipeline.read_text())
-    params = pipeline_params(pipeline)
-    folder = pipeline.parent / MANIFESTS
-    out = {}
-    for name, stage in doc["stages"].items():
-        if name == CODE_STAGE:
-            continue
-        module, backend, tasks = stage_code(stage, params)
-        if "${item.task}" in stage["cmd"]:
-            for task in tasks:
-                files = closure(module, backend, [task]) | {task_file(backend, task)}
-                out[folder / name / f"{task}.txt"] = manifest(files)
-        else:
-            files = closure(module, backend, tasks) | {task_file(backend, t) for t in tasks}
-            out[folder / f"{name}.txt"] = manifest(files)
-    return out
+def backend_token(stage: dict) -> str:
+    """The back end as the stage's command names it (``${suite.backend}``, ``pybullet``), else
+    the pipeline's ``backend`` param."""
+    words = " ".join(stage["cmd"].split()).split()
+    return words[words.index("--backend") + 1] if "--backend" in words else "${backend}"
 
 
-def write_manifests(pipeline: Path, wanted: dict[Path, str]) -> list[Path]:
-    """Write ``pipeline``'s manifests ``wanted`` (see manifests; only those whose text
-    changed) and delete the folder's other files. Returns the written ones."""
-    folder = pipeline.parent / MANIFESTS
-    for old in sorted(folder.rglob("*"), reverse=True) if folder.exists() else []:
-        if old.is_file() and old not in wanted:
-            old.unlink()
-        elif old.is_dir() and not any(w.is_relative_to(old) for w in wanted):
-            old.rmdir()
-    written = []
-    for path, text in wanted.items():
-        if not path.exists() or path.read_text() != text:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(text)
-            written.append(path)
-    return written
+def task_token(stage: dict) -> str:
+    """The task as the stage's command names it (``${item.task}``, ``${task}``, a name)."""
+    words = " ".join(stage["cmd"].split()).split()
+    if "${item.task}" in words or any("${item.task}" in w for w in words):
+        return "${item.task}"
+    return words[words.index("--task") + 1] if "--task" in words else "${task}"
 
 
-def manifest_dep(pipeline: Path, name: str, stage: dict) -> str:
-    """The dep a stage lists for its manifest, relative to its wdir."""
+def dep_of(path: Path, backend: str) -> str:
+    """The code dep that covers the project file ``path``: its layer's folder, its back end's
+    folder, or the file itself (a task's file under the back end as dvc.yaml names it)."""
+    parts = path.parts
+    if len(parts) > 2 and parts[1] in LAYERS:
+        return f"mimicgen_pipe/{parts[1]}"
+    if len(parts) > 3 and parts[1] == "backends":
+        return f"mimicgen_pipe/backends/{backend}"
+    if len(parts) > 3 and parts[1] == "tasks":
+        return f"mimicgen_pipe/tasks/{backend}/{parts[3]}"
+    return path.as_posix()
+
+
+@functools.cache
+def docstring_only(path: Path) -> bool:
+    """Whether a project file runs no code (a package's ``__init__.py`` holding only its
+    docstring): no dep, since no edit of it can change what a stage does."""
+    body = ast.parse((REPO / path).read_text()).body
+    return (
+        len(body) == 1 and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+    )
+
+
+def code_deps(stage: dict, params: dict) -> list[str]:
+    """The code deps a dvc.yaml stage must list (paths from the repository root): layers in
+    their order, then the back end's folder and single files: its own task's file by
+    template, and the file of each task that one of its tasks is made from."""
+    module, backend, tasks = stage_code(stage, params)
+    # one closure per task (its own file left out): what a task imports of another is there
+    files = set().union(*(closure(module, backend, one) for one in [[t] for t in tasks] or [[]]))
+    token = backend_token(stage)
+    deps = {dep_of(f, token) for f in files if not docstring_only(f)}
+    if tasks:
+        deps.add(f"mimicgen_pipe/tasks/{token}/{task_token(stage)}.py")
+    order = {f"mimicgen_pipe/{layer}": i for i, layer in enumerate(LAYERS)}
+    return sorted(deps, key=lambda d: (order.get(d, 99), d))
+
+
+def is_code(dep: object) -> bool:
+    """Whether a dep is project code (a layer, a back end or a file of mimicgen_pipe)."""
+    return isinstance(dep, str) and dep.lstrip("./").startswith("mimicgen_pipe")
+
+
+def _rel(path: str, pipeline: Path, stage: dict) -> str:
+    """``path`` (from the repository root) as the stage, run in its wdir, names it."""
     wdir = (pipeline.parent / stage.get("wdir", ".")).resolve()
-    folder = Path(os.path.relpath((pipeline.parent / MANIFESTS).resolve(), wdir)).as_posix()
-    if "${item.task}" in stage["cmd"]:
-        return f"{folder}/{name}/${{item.task}}.txt"
-    return f"{folder}/{name}.txt"
+    return Path(os.path.relpath(REPO / path, wdir)).as_posix()
 
 
-CODE_FOLDERS = ["mimicgen_pipe", "envs", "stages", "scripts/dvc_deps.py"]
-# the code stage's command after its params check (mimicgen-pipe check)
-MANIFESTS_CMD = "python scripts/dvc_deps.py --manifests"
+def stamp(pipeline: Path) -> str:
+    """The file the check stage writes, from the repository root: ``<params file>.checked``
+    with the params file's suffix dropped."""
+    return params_path(pipeline).resolve().relative_to(REPO).with_suffix(".checked").as_posix()
+
+
+def wanted_deps(pipeline: Path, name: str, stage: dict, params: dict) -> list[str]:
+    """The code deps and, but for the check stage, the check's stamp, as ``stage`` names them."""
+    own = [] if name == CHECK_STAGE else [stamp(pipeline)]
+    return [_rel(d, pipeline, stage) for d in own + code_deps(stage, params)]
+
+
+def params_dep(pipeline: Path, stage: dict) -> str:
+    """The pipeline's params file as ``stage`` names it."""
+    return _rel(params_path(pipeline).resolve().relative_to(REPO).as_posix(), pipeline, stage)
+
+
+def check_cmd(pipeline: Path, stage: dict) -> str:
+    params_file = _rel(
+        params_path(pipeline).resolve().relative_to(REPO).as_posix(), pipeline, stage
+    )
+    out = _rel(stamp(pipeline), pipeline, stage)
+    return f"mimicgen-pipe check --params {params_file} --stamp {out}"
 
 
 def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
     """What is wrong with the code deps of ``pipeline``'s stages (``doc``: its parsed text,
-    read from the file by default). The pipeline must have the code stage, depending on the
-    project's code folders and on the params that pick back ends and tasks; every other stage
-    must list its own manifest, and no project .py file or task file of its own."""
+    read from the file by default): the check stage must run ``mimicgen-pipe check`` on the
+    whole params file and write the stamp; every stage must list exactly its code deps, and
+    every other stage the stamp."""
     doc = doc if doc is not None else yaml.safe_load(pipeline.read_text())
+    params = pipeline_params(pipeline)
     rel = os.path.relpath(pipeline, REPO)
-    code = doc["stages"].get(CODE_STAGE)
-    if code is None:
-        return [f"{rel}: no {CODE_STAGE} stage"]
+    check = doc["stages"].get(CHECK_STAGE)
+    if check is None:
+        return [f"{rel}: no {CHECK_STAGE} stage"]
     out = []
-    wdir = (pipeline.parent / code.get("wdir", ".")).resolve()
-    folders = [Path(os.path.relpath(REPO / f, wdir)).as_posix() for f in CODE_FOLDERS]
-    if sorted(code.get("deps") or []) != sorted(folders):
-        out.append(f"{rel}: {CODE_STAGE}: deps {code.get('deps')}, should be {folders}")
-    params_file = Path(os.path.relpath(params_path(pipeline), wdir)).as_posix()
-    if code.get("params") != [{params_file: None}]:
-        out.append(f"{rel}: {CODE_STAGE}: params {code.get('params')}, should be the whole "
+    if " ".join(str(check.get("cmd", "")).split()) != check_cmd(pipeline, check):
+        out.append(f"{rel}: {CHECK_STAGE}: cmd {check.get('cmd')!r}, should be "
+                   f"{check_cmd(pipeline, check)!r}")  # fmt: skip
+    params_file = _rel(
+        params_path(pipeline).resolve().relative_to(REPO).as_posix(), pipeline, check
+    )
+    if check.get("params") != [{params_file: None}]:
+        out.append(f"{rel}: {CHECK_STAGE}: params {check.get('params')}, should be the whole "
                    f"params file: [{params_file}:]")  # fmt: skip
-    manifests_cmd = Path(os.path.relpath(pipeline, wdir)).as_posix()
-    cmd = f"mimicgen-pipe check --params {params_file} && {MANIFESTS_CMD} {manifests_cmd}"
-    if " ".join(str(code.get("cmd", "")).split()) != cmd:
-        out.append(f"{rel}: {CODE_STAGE}: cmd {code.get('cmd')!r}, should be {cmd!r}")
     for name, stage in doc["stages"].items():
-        if name == CODE_STAGE:
-            continue
         deps = stage.get("deps") or []
-        if manifest_dep(pipeline, name, stage) not in deps:
-            out.append(f"{rel}: {name}: does not list {manifest_dep(pipeline, name, stage)}")
-        files = [d for d in deps if isinstance(d, str) and TASK_OR_CODE.match(d)]
-        if files:
-            out.append(f"{rel}: {name}: lists code files its manifest holds: {files}")
+        wanted = wanted_deps(pipeline, name, stage, params)
+        have = [d for d in deps if is_code(d) or d == wanted[0]]
+        if sorted(have) != sorted(wanted):
+            missing = sorted(set(wanted) - set(have))
+            extra = sorted(set(have) - set(wanted))
+            out.append(f"{rel}: {name}: code deps lack {missing} and list {extra} too")
     return out
+
+
+def _flow(items: list[str], indent: str) -> list[str]:
+    """``deps: [...]`` lines, wrapped at 100 characters."""
+    words = [f'"{i}"' if re.search(r"[${}:,]", i) else i for i in items]
+    lines, line = [], f"{indent}deps: ["
+    for k, w in enumerate(words):
+        piece = w + ("]" if k == len(words) - 1 else ",")
+        if len(line) + len(piece) + 1 > 100 and not line.endswith("["):
+            lines.append(line)
+            line = f"{indent}  {piece}"
+        else:
+            line += ("" if line.endswith("[") else " ") + piece
+    lines.append(line)
+    return lines
+
+
+def write_deps(pipeline: Path) -> bool:
+    """Rewrite every stage's deps in ``pipeline`` (its text, comments kept): the stamp, the
+    code deps, then its other deps as they were. True where the file changed."""
+    text = pipeline.read_text()
+    doc = yaml.safe_load(text)
+    params = pipeline_params(pipeline)
+    lines = text.split("\n")
+    starts = [i for i, line in enumerate(lines) if re.match(r"^  [\w-]+:", line)]
+    for k, start in reversed(list(enumerate(starts))):
+        name = lines[start].strip().split(":")[0]
+        if name not in doc["stages"]:
+            continue
+        stage = doc["stages"][name]
+        end = starts[k + 1] if k + 1 < len(starts) else len(lines)
+        at = next((i for i in range(start, end) if lines[i].startswith("    deps:")), None)
+        wanted = wanted_deps(pipeline, name, stage, params)
+        rest = [d for d in stage.get("deps") or [] if not is_code(d) and d != wanted[0]
+                and "code_deps/" not in str(d)]  # fmt: skip
+        new = _flow(wanted + rest, "    ")
+        if at is None:
+            raise SystemExit(f"{pipeline}: {name}: no deps: line to rewrite")
+        stop = at + 1
+        depth = lines[at].count("[") - lines[at].count("]")
+        while depth > 0:
+            depth += lines[stop].count("[") - lines[stop].count("]")
+            stop += 1
+        lines[at:stop] = new
+    out = "\n".join(lines)
+    if out != text:
+        pipeline.write_text(out)
+    return out != text
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     mode = p.add_mutually_exclusive_group(required=True)
-    mode.add_argument("--manifests", metavar="DVC_YAML", help="write one pipeline's manifests")
     mode.add_argument("--check", action="store_true", help="exit 1 when something differs")
-    mode.add_argument("--write", action="store_true", help="write every pipeline's manifests")
+    mode.add_argument("--write", action="store_true", help="rewrite the code deps in dvc.yaml")
     args = p.parse_args(argv)
-    if args.manifests:
-        pipeline = (Path.cwd() / args.manifests).resolve()
-        for path in write_manifests(pipeline, manifests(pipeline)):
-            print(f"{path.relative_to(REPO)}: written")
-        return 0
     problems = []
     for name in PIPELINES:
         path = REPO / name
-        if not path.exists():
-            continue
-        wanted = manifests(path)
-        if args.write:
-            for written in write_manifests(path, wanted):
-                print(f"{written.relative_to(REPO)}: written")
+        if args.write and write_deps(path):
+            print(f"{name}: code deps written")
         problems += stage_problems(path)
-        for manifest_path, text in wanted.items():
-            if not manifest_path.exists() or manifest_path.read_text() != text:
-                problems.append(f"{manifest_path.relative_to(REPO)}: stale")
     for line in problems:
         print(line, file=sys.stderr)
     if problems:

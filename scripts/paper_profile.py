@@ -6,8 +6,9 @@ then checkpointed and evaluated here as the train stage's own policies.
     python scripts/paper_profile.py pack --task peg_insertion \\
         --store data/generated/peg_insertion_D0_train.zarr --out data/gpu/peg_insertion_D0.npz
     # on the GPU machine, with a copy of this repository (PYTHONPATH=. where the package is
-    # not installed): every task and seed as one stacked network (mimicgen_pipe.
-    # stacked_training), checkpoints every --every epochs, --deadline seconds at most
+    # not installed): every task and seed as one stacked network
+    # (mimicgen_pipe.learn.stacked_training), checkpoints every --every epochs, --deadline seconds
+    # at most
     python scripts/paper_profile.py train --packed data/gpu/*.npz --out /tmp/paper --deadline 450
     # there too: each run's checkpoints of --epochs, of --spread N (N in all, one period
     # apart, the last included; the period printed) and its last, in files of at most
@@ -39,19 +40,19 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mimicgen_pipe.policy import BCRNN, PolicyConfig
-from mimicgen_pipe.training import POLICY_DIR, SequenceData, TrainConfig, TrainingRun
+from mimicgen_pipe.learn.policy import BCRNN, PolicyConfig
+from mimicgen_pipe.learn.training import POLICY_DIR, SequenceData, TrainConfig, TrainingRun
 
 
 def pack(args: argparse.Namespace) -> None:
     import dataclasses
 
-    import envs
-    from mimicgen_pipe.params import load_params
-    from mimicgen_pipe.training import policy_training
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.data.params import load_params
+    from mimicgen_pipe.learn.training import policy_training
 
     params = load_params(args.params)
-    spec = envs.task_spec(params.backend, args.task)
+    spec = backends.task_spec(params.backend, args.task)
     train = dataclasses.replace(params.train, profile="paper", obs_keys=list(spec.default_obs_keys))
     params = dataclasses.replace(params, task=args.task, train=train)
     training = policy_training(params, args.data, Path(args.store))
@@ -114,7 +115,7 @@ def read_packed(path: str) -> tuple[dict, SequenceData, SequenceData]:
 
 
 def train(args: argparse.Namespace) -> None:
-    from mimicgen_pipe.stacked_training import train_stacked
+    from mimicgen_pipe.learn.stacked_training import train_stacked
 
     out = Path(args.out)
     # TF32 matmuls: 1.6x faster on an H200 here (fp32 GEMMs are most of a step), 10-bit
@@ -212,7 +213,7 @@ def _saved_size(obj: dict) -> int:
 
 
 def unpack(args: argparse.Namespace) -> None:
-    from mimicgen_pipe.outputs import claim, claims
+    from mimicgen_pipe.data.outputs import claim, claims
 
     with claims():  # as a stage: refuses to write over anything but its own kinds of output
         claim(
@@ -225,10 +226,10 @@ def unpack(args: argparse.Namespace) -> None:
 
 
 def _unpack(args: argparse.Namespace) -> None:
-    from mimicgen_pipe.errors import InputError
-    from mimicgen_pipe.metrics import metrics_identity, write_metrics, write_timings
-    from mimicgen_pipe.training import checkpoint_path, save_checkpoint
-    from stages.train import write_curve
+    from mimicgen_pipe.core.errors import InputError
+    from mimicgen_pipe.data.metrics import metrics_identity, write_metrics, write_timings
+    from mimicgen_pipe.learn.training import checkpoint_path, save_checkpoint
+    from mimicgen_pipe.stages.train import write_curve
 
     header, tr, va = read_packed(args.packed)
     config = PolicyConfig.from_dict(header["policy"])

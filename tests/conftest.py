@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from mimicgen_pipe import arithmetic
+from mimicgen_pipe.run import arithmetic
 
 arithmetic.pin()  # as the CLI does, before a test imports numpy or torch
 os.environ.setdefault("MS_SKIP_ASSET_DOWNLOAD_PROMPT", "1")
@@ -165,7 +165,7 @@ def replay_first_episodes(store, env, count: int) -> list[bool]:
     EpisodeStore), each replayed on ``env`` from its stored initial state."""
     import numpy as np
 
-    from mimicgen_pipe.generation import replay_actions
+    from mimicgen_pipe.method.generation import replay_actions
 
     starts = np.concatenate([[0], store.episode_ends[:-1]])
     out = []

@@ -1,10 +1,10 @@
-"""A stand-in policy behind the policy server's own loop (mimicgen_pipe.external._serve.main),
-for the tests: it runs under this virtualenv's Python, with no framework. Its ``--path`` is a
-JSON file: ``observations`` and ``action_dim`` (what its hello announces), ``meta``, and how
-it misbehaves: ``fail_load`` (a message), ``exit_at`` / ``hang_at`` (the act call, counted
-from 1 over the server's life, at which it exits with status 3 / sleeps). ``log``: a file
-each server appends its pid to when it starts. ``report_env``: names of environment
-variables whose values at the process's start (as its client set them) its hello's
+"""A stand-in policy behind the policy server's own loop
+(mimicgen_pipe.formats.external._serve.main), for the tests: it runs under this virtualenv's Python,
+with no framework. Its ``--path`` is a JSON file: ``observations`` and ``action_dim`` (what its
+hello announces), ``meta``, and how it misbehaves: ``fail_load`` (a message), ``exit_at`` /
+``hang_at`` (the act call, counted from 1 over the server's life, at which it exits with status 3 /
+sleeps). ``log``: a file each server appends its pid to when it starts. ``report_env``: names of
+environment variables whose values at the process's start (as its client set them) its hello's
 ``meta["env"]`` gives.
 
 Its action: action[i] = the sum of the i-th observation (keys in announced order, cycled),
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from mimicgen_pipe.external import _serve
+from mimicgen_pipe.formats.external import _serve
 
 STARTED_WITH = dict(os.environ)  # before _serve.main sets anything
 

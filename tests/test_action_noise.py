@@ -10,10 +10,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mimicgen_pipe.controller import clip_actions, target_poses_to_actions
-from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.runner import attempt_seed, source_demos
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe.core.controller import clip_actions, target_poses_to_actions
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.run.runner import attempt_seed, source_demos
 
 RADIUS = 0.06  # [m]
 
@@ -30,9 +30,9 @@ def around_cube_b(spec, radius: float):
 
 @pytest.fixture(scope="module")
 def setting(pipeline):
-    import envs
+    from mimicgen_pipe import backends
 
-    env = envs.make_env("maniskill", "stack_cube")
+    env = backends.make_env("maniskill", "stack_cube")
     spec = env.spec
     sources = source_demos(read_store(pipeline / "data/parsed/stack_cube.zarr"), spec.objects)
     env.rebuild()
@@ -81,9 +81,9 @@ def test_a_radius_over_everything_is_the_noise_free_attempt(setting):
 
 @pytest.mark.parametrize("radius", [-0.01, float("nan")])
 def test_a_radius_that_is_no_distance_is_refused(radius):
-    import envs
+    from mimicgen_pipe import backends
 
-    spec = envs.task_spec("maniskill", "stack_cube")
+    spec = backends.task_spec("maniskill", "stack_cube")
     bad = dataclasses.replace(spec.subtasks[0], noise_free_radius=radius)
     with pytest.raises(ValueError, match=r"noise_free_radius .* not a distance >= 0 \[m\]"):
         dataclasses.replace(spec, subtasks=(bad, *spec.subtasks[1:]))

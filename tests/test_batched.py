@@ -1,4 +1,4 @@
-"""The batched attempt engine (mimicgen_pipe.batched) on a CPU lockstep batch of ManiSkill
+"""The batched attempt engine (mimicgen_pipe.method.batched) on a CPU lockstep batch of ManiSkill
 StackCube envs: the same attempts as the one-at-a-time path for the same seeds, every slot
 at its own place in its own segments, ended attempts handed back and their slot alone
 reset; and the batch size refused before any work when it is not a positive integer."""
@@ -8,12 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mimicgen_pipe.batched import LockstepBatch, replay_batched, run_batched
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.params import check_batch_size
-from mimicgen_pipe.runner import attempt_seed, source_demos
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe.core.contracts import check_batch_size
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.batched import LockstepBatch, replay_batched, run_batched
+from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.run.runner import attempt_seed, source_demos
 from tests.conftest import same_attempt
 
 N_SEEDS, N_SLOTS = 7, 3
@@ -39,11 +39,11 @@ class Logged:
 
 @pytest.fixture(scope="module")
 def setting(pipeline):
-    import envs
+    from mimicgen_pipe import backends
 
-    spec = envs.task_spec("maniskill", "stack_cube")
+    spec = backends.task_spec("maniskill", "stack_cube")
     sources = source_demos(read_store(pipeline / "data/parsed/stack_cube.zarr"), spec.objects)
-    slots = [Logged(envs.make_env("maniskill", "stack_cube")) for _ in range(N_SLOTS)]
+    slots = [Logged(backends.make_env("maniskill", "stack_cube")) for _ in range(N_SLOTS)]
     yield spec, sources, slots
     for env in slots:
         env.close()

@@ -17,15 +17,16 @@ import pytest
 import torch
 from numcodecs import Zstd
 
-from mimicgen_pipe import compare, outputs
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.exporters.robomimic import check_finite
-from mimicgen_pipe.metrics import read_metrics
-from mimicgen_pipe.policy import BCRNN, PolicyConfig
-from mimicgen_pipe.store import open_store, read_store, write_store
-from mimicgen_pipe.training import load_checkpoint, save_checkpoint
-from stages import check_path_names
-from stages.compare import read_shown
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data import outputs
+from mimicgen_pipe.data.metrics import read_metrics
+from mimicgen_pipe.data.store import open_store, read_store, write_store
+from mimicgen_pipe.formats.exporters.robomimic import check_finite
+from mimicgen_pipe.learn.policy import BCRNN, PolicyConfig
+from mimicgen_pipe.learn.training import load_checkpoint, save_checkpoint
+from mimicgen_pipe.report import compare
+from mimicgen_pipe.stages import check_path_names
+from mimicgen_pipe.stages.compare import read_shown
 
 DEEP = "[" * 100_000 + "]" * 100_000
 

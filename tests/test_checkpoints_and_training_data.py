@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import torch
 
-from mimicgen_pipe import store as store_module
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.policy import BCRNN, PolicyConfig
-from mimicgen_pipe.store import open_store, read_store, write_store
-from mimicgen_pipe.training import (
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data import store as store_module
+from mimicgen_pipe.data.store import open_store, read_store, write_store
+from mimicgen_pipe.learn.policy import BCRNN, PolicyConfig
+from mimicgen_pipe.learn.training import (
     SequenceData,
     check_meta,
     load_checkpoint,

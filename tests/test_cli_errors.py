@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 import pytest
 
-from mimicgen_pipe.store import write_store
+from mimicgen_pipe.data.store import write_store
 from tests.conftest import REPO, cli
 
 
@@ -227,11 +227,11 @@ def test_source_stops_with_one_error_when_the_demonstrator_falls_short(tmp_path,
     an error naming the count, not a silently smaller source store."""
     import argparse
 
-    import envs
-    from mimicgen_pipe.errors import InputError
-    from stages import source
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.core.errors import InputError
+    from mimicgen_pipe.stages import source
 
-    real, seeds = envs.source_episodes, []
+    real, seeds = backends.source_episodes, []
 
     def first_demo_only(backend, env, num_demos, seed, from_file, work_dir):
         seeds.append(seed)
@@ -239,7 +239,7 @@ def test_source_stops_with_one_error_when_the_demonstrator_falls_short(tmp_path,
             return real(backend, env, 1, seed, from_file, work_dir)
         return [], 1, 1  # every later seed's plan fails
 
-    monkeypatch.setattr(envs, "source_episodes", first_demo_only)
+    monkeypatch.setattr(backends, "source_episodes", first_demo_only)
     params = "task: stack\nbackend: pybullet\nsource: {num_demos: 2}\n"
     (tmp_path / "params.yaml").write_text(params)
     parser = argparse.ArgumentParser()
@@ -280,7 +280,8 @@ def test_a_params_typo_stops_before_the_stages_libraries_load(tmp_path, monkeypa
     probe = (
         "import sys; from mimicgen_pipe import cli\n"
         "rc = cli.main(['generate', '--variant', 'D0'])\n"
-        "heavy = ('stages.generate', 'zarr', 'torch', 'sapien', 'mani_skill', 'pybullet')\n"
+        "heavy = ('mimicgen_pipe.stages.generate', 'zarr', 'torch', 'sapien', 'mani_skill',"
+        " 'pybullet')\n"
         "print(rc, [m for m in heavy if m in sys.modules])\n"
     )
     res = subprocess.run(

@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from mimicgen_pipe import compare
-from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.report import compare
 from tests.conftest import cli
 
 QS = compare.PIPELINES["quickstart"]

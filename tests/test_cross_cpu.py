@@ -1,4 +1,4 @@
-"""The pinned arithmetic (mimicgen_pipe.arithmetic): the numeric libraries run the pinned
+"""The pinned arithmetic (mimicgen_pipe.run.arithmetic): the numeric libraries run the pinned
 code paths in every process the CLI starts, the quickstart's chain gives the same bytes with
 another CPU type's switches set, and on the CPU type that made the committed locks, the
 bytes in quickstart/dvc.lock."""
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mimicgen_pipe import arithmetic
+from mimicgen_pipe.run import arithmetic
 from tests.conftest import REPO, cli
 
 # Another machine type, emulated: numpy without any of its dispatched SIMD paths (as on a

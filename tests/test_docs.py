@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.data.params import Params
 
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"

@@ -38,7 +38,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mimicgen_pipe.metrics import timings_file
+from mimicgen_pipe.data.metrics import timings_file
 
 # the suite's lock is large: libyaml's loader reads it in a fraction of the pure-Python time
 _Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import envs
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.store import read_store
 from tests.conftest import cli
 
 TASK = "drawer_cleanup"
@@ -23,7 +23,7 @@ ORDER = ["drawer_open", "grasp_cubeA", "cubeA_in_drawer", "drawer_closed", "gras
 
 
 def test_the_spec_chains_six_subtasks_the_drawer_ones_relative_to_the_drawer():
-    spec = envs.task_spec("maniskill", TASK)
+    spec = backends.task_spec("maniskill", TASK)
     assert [s.reference_object for s in spec.subtasks] == [
         "drawer", "cubeA", "drawer", "drawer", "cubeB", "cubeC",
     ]  # fmt: skip
@@ -34,7 +34,7 @@ def test_the_spec_chains_six_subtasks_the_drawer_ones_relative_to_the_drawer():
 def test_the_drawer_signals_wait_for_the_hand_to_leave_the_handle():
     """drawer_open and drawer_closed hold only with the handle let go and the hand CLEAR from
     it, so that the straight transit to the next subtask starts away from the drawer."""
-    from envs.maniskill.tasks import drawer_cleanup as task
+    from mimicgen_pipe.tasks.maniskill import drawer_cleanup as task
 
     turned = np.array([np.cos(0.15), 0.0, 0.0, np.sin(0.15)], np.float32)  # yaw 0.3 rad
     drawer = (np.array([0.02, 0.2, 0.0], np.float32), turned)
@@ -66,7 +66,7 @@ def drawer_task(tmp_path_factory) -> Path:
 def test_the_drawer_slides_out_along_its_axis_and_stays_where_it_is_let_go():
     import torch
 
-    env = envs.make_env("maniskill", TASK)
+    env = backends.make_env("maniskill", TASK)
     try:
         env.reset(seed=1, variant="D1")
         shut = env.object_poses()["drawer"]
@@ -99,11 +99,11 @@ def test_source_demos_parse_into_six_segments_in_the_tasks_order(drawer_task):
 
 @pytest.mark.sim
 def test_kept_episodes_replay_to_success_with_their_subtasks_in_order(drawer_task):
-    from envs.maniskill.env import ManiSkillEnv
-    from mimicgen_pipe.generation import GenerationConfig, replay_actions, run_attempt
-    from mimicgen_pipe.runner import attempt_seed, source_demos
+    from mimicgen_pipe.backends.maniskill.env import ManiSkillEnv
+    from mimicgen_pipe.method.generation import GenerationConfig, replay_actions, run_attempt
+    from mimicgen_pipe.run.runner import attempt_seed, source_demos
 
-    env = envs.make_env("maniskill", TASK)
+    env = backends.make_env("maniskill", TASK)
     stock_env = ManiSkillEnv(TASK, lean_step=False)
     try:
         store = read_store(drawer_task / f"data/parsed/{TASK}.zarr")

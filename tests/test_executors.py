@@ -25,8 +25,8 @@ import numpy as np
 import pytest
 import zarr
 
-from mimicgen_pipe.executors import Executor, map_blocks
-from mimicgen_pipe.resume import WorkDir, code_digest, work_dir_of
+from mimicgen_pipe.run.executors import Executor, map_blocks
+from mimicgen_pipe.run.resume import WorkDir, code_digest, work_dir_of
 from tests.conftest import PYBULLET_STACK, REPO, cli, stages_copied_to
 from tests.test_interrupts_and_outputs import alive, children, own_lines, start
 from tests.test_store_integrity import tree_digest
@@ -140,7 +140,7 @@ def _kill_self_on_three(x: int) -> int:
 
 
 def test_a_worker_that_dies_is_an_error_naming_it_not_a_wait():
-    from mimicgen_pipe.executors.local import WorkerDied
+    from mimicgen_pipe.run.executors.local import WorkerDied
 
     with pytest.raises(WorkerDied, match=r"exit code -9 while running a block"):
         list(map_blocks(_kill_self_on_three, range(8), Executor("local", 2), _noop))
@@ -169,7 +169,7 @@ def _pid_then_sleep(x: int) -> int:
 def test_closing_the_iterator_early_leaves_no_worker():
     """The local pool's promise: close its iterator and the workers are gone when that
     returns (here the parent lives on, so nothing but the teardown can end them)."""
-    from mimicgen_pipe.executors import local
+    from mimicgen_pipe.run.executors import local
 
     results = local.imap_unordered(_pid_then_sleep, enumerate(range(20)), 2, _noop)
     pids = {next(results)[1] for _ in range(4)}

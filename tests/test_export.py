@@ -15,12 +15,13 @@ import h5py
 import numpy as np
 import pytest
 
-from mimicgen_pipe import exporters, robomimic_source
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.metrics import IDENTITY_FIELDS, is_timing
-from mimicgen_pipe.segments import gripper_events, read_boundaries
-from mimicgen_pipe.store import read_store, store_cameras, write_store
-from mimicgen_pipe.taskspec import SubtaskSpec
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.taskspec import SubtaskSpec
+from mimicgen_pipe.data.metrics import IDENTITY_FIELDS, is_timing
+from mimicgen_pipe.data.store import read_store, store_cameras, write_store
+from mimicgen_pipe.formats import exporters
+from mimicgen_pipe.method.segments import gripper_events, read_boundaries
+from mimicgen_pipe.sources import robomimic_source
 from tests.conftest import REPO, cli
 
 LENGTHS = (12, 7, 5)
@@ -100,7 +101,7 @@ def synthetic_store(
              "control_mode": "pd_ee_delta_pose", "control_freq": 20, "run_id": RUN_ID,
              "params": GENERATE_PARAMS}  # fmt: skip
     if cameras:
-        from envs._cameras import calibration
+        from mimicgen_pipe.core.cameras import calibration
 
         attrs["cameras"] = {c: {"height": h, "width": w} for c, (h, w) in cameras.items()}
         attrs["camera_calibration"] = {c: calibration(c, h, w) for c, (h, w) in cameras.items()}
@@ -109,9 +110,9 @@ def synthetic_store(
 
 
 def export_info(store):
-    import envs
+    from mimicgen_pipe import backends
 
-    spec = envs.task_spec("maniskill", "stack_cube")
+    spec = backends.task_spec("maniskill", "stack_cube")
     return exporters.export_info(store.attrs, spec, list(OBS), 0.34)
 
 
@@ -466,7 +467,7 @@ def fake_replays(store) -> dict:
     """The ManiSkill exporter's replay arguments for a synthetic store, standing in for the
     simulator's: each episode's states (one more after its last step), STEP_SUCCESS, zero
     joint actions, and a last observation one more than the store's last."""
-    from mimicgen_pipe.exporters.maniskill import Replayed
+    from mimicgen_pipe.core.contracts import Replayed
 
     layout = [("actors", "cubeA", 13), ("articulations", "panda", 7)]  # the 20 state values
     replays = []
@@ -523,8 +524,8 @@ def test_camera_calibration_projects_as_the_cameras_see(tmp_path):
     side (+y) on the image's right; the wrist camera sees a point ahead of it along the
     fingers at its centre. A store's calibration with a wrong entry is one error naming
     the key, before anything is written."""
-    from envs import _cameras
-    from mimicgen_pipe import camera_calibration as cc
+    from mimicgen_pipe.core import camera_calibration as cc
+    from mimicgen_pipe.core import cameras as _cameras
 
     h, w = 84, 96
     agent = _cameras.calibration("agentview", h, w)

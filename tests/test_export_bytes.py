@@ -8,7 +8,7 @@ from pathlib import Path
 
 import h5py
 
-from mimicgen_pipe import exporters
+from mimicgen_pipe.formats import exporters
 from tests.test_export import CAMERAS, export_info, fake_replays, synthetic_store
 
 FORMATS = ("robomimic", "lerobot", "maniskill")

@@ -1,5 +1,5 @@
-"""Policies trained elsewhere (mimicgen_pipe.external): the wire format, the server loop with
-a stand-in policy under this virtualenv's Python (tests/external_stand_in.py), the errors
+"""Policies trained elsewhere (mimicgen_pipe.formats.external): the wire format, the server loop
+with a stand-in policy under this virtualenv's Python (tests/external_stand_in.py), the errors
 before and during rollouts, and the evaluator's loop over them on a tiny fake env. The
 round trip through robomimic's own training, with its check virtualenv, is marked slow."""
 
@@ -15,11 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe import external
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.evaluation import EvalJob, evaluate_policies, success_rate
-from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.external import (
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.observations import observation_dims
+from mimicgen_pipe.formats import external
+from mimicgen_pipe.formats.external import (
     ExternalPolicy,
     PolicySpec,
     _serve,
@@ -28,7 +27,8 @@ from mimicgen_pipe.external import (
     policy_cameras,
     provided_inputs,
 )
-from mimicgen_pipe.observations import observation_dims
+from mimicgen_pipe.learn.evaluation import EvalJob, evaluate_policies, success_rate
+from mimicgen_pipe.run.executors import Executor
 from tests.conftest import REPO, SMALL_PARAMS, cli
 
 STAND_IN = REPO / "tests" / "external_stand_in.py"
@@ -214,7 +214,7 @@ def test_lerobot_inputs_are_the_export_s_frames(tmp_path):
     export wrote for that step's observation."""
     import pyarrow.parquet as pq
 
-    from mimicgen_pipe import exporters
+    from mimicgen_pipe.formats import exporters
     from tests.test_export import export_info, synthetic_store
 
     store = synthetic_store(tmp_path / "g.zarr")
@@ -238,7 +238,7 @@ def test_robomimic_inputs_are_the_export_s_obs(tmp_path):
     under the export's names; and our own keys, as exports before those names had them."""
     import h5py
 
-    from mimicgen_pipe import exporters
+    from mimicgen_pipe.formats import exporters
     from tests.test_export import CAMERAS as SIZES
     from tests.test_export import export_info, synthetic_store
 
@@ -396,11 +396,11 @@ def test_rollouts_show_an_image_policy_its_cameras_pictures_of_the_moment():
     """With a renderer, every step's observation holds <camera>_image, the observe cameras'
     picture of the env's state at that step (as the observe stage pictures a stored state),
     beside the low-dim keys."""
-    import envs
-    from mimicgen_pipe.evaluation import evaluation_seed, rollout
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.learn.evaluation import evaluation_seed, rollout
 
-    env = envs.make_env("maniskill", "stack_cube")
-    renderer = envs.make_renderer("maniskill", "stack_cube", "panda", 40, 32, ("agentview",))
+    env = backends.make_env("maniskill", "stack_cube")
+    renderer = backends.make_renderer("maniskill", "stack_cube", "panda", 40, 32, ("agentview",))
     try:
         policy = Recorder(env)
         seed = evaluation_seed(0, "D1", 0)
@@ -429,7 +429,7 @@ def test_robomimic_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_
     folder: both checkpoints in epoch order on the same scenes of our evaluation seeds, each
     episode run to the task's horizon or to success; the metrics of our evaluation (max and
     last over the checkpoints), the last policy's identity."""
-    from mimicgen_pipe.evaluation import evaluation_seed
+    from mimicgen_pipe.learn.evaluation import evaluation_seed
     from tests.test_learners import learner, short_robomimic_config
 
     cli("export", "--variant", "D1", "--formats", "robomimic", "--out", str(tmp_path / "x"),
@@ -466,9 +466,9 @@ def test_robomimic_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_
              for e in ("1", "2")]  # fmt: skip
     assert (m["success_rate_max"], m["success_rate_last"]) == (max(rates), rates[1])
 
-    import envs
+    from mimicgen_pipe import backends
 
-    obs_keys = tuple(envs.task_spec("maniskill", "stack_cube").default_obs_keys)
+    obs_keys = tuple(backends.task_spec("maniskill", "stack_cube").default_obs_keys)
     spec = PolicySpec("robomimic", str(checkpoint), str(external.DEFAULT_PYTHON), obs_keys, "")
     dims = observation_dims(("cubeA", "cubeB"))
     obs = {k: np.full(d, 0.1, np.float32) for k, d in dims.items()}
@@ -493,7 +493,7 @@ def test_lerobot_policy_trained_on_our_export_is_evaluated_here(pipeline, tmp_pa
     on its pretrained_model directory: our evaluation's metrics and seeds, the policy read
     the export's state and environment state, each episode run to the horizon or to
     success."""
-    from mimicgen_pipe.evaluation import evaluation_seed
+    from mimicgen_pipe.learn.evaluation import evaluation_seed
     from tests.test_learners import learner
 
     cli("export", "--variant", "D1", "--formats", "lerobot", "--out", str(tmp_path / "x"),
@@ -550,7 +550,7 @@ torch.save({"algo_name": "bc", "config": config.dump(), "model": {"nets": {}},
      ("core_class", "VisualCore"), ("obs_randomizer_class", "CropRandomizer")],
 )  # fmt: skip
 def test_robomimic_class_names_outside_the_allowlist_are_refused_naming_the_key(key, value):
-    from mimicgen_pipe.external import robomimic
+    from mimicgen_pipe.formats.external import robomimic
 
     def config(name: object) -> dict:
         rgb: dict = {"core_class": "VisualCore", "core_kwargs": {}}

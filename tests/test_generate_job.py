@@ -1,5 +1,5 @@
-"""A generate request is resolved once (stages.generate_job.resolve) into one frozen job,
-every check done before any work and before any output is claimed: the job of a small
+"""A generate request is resolved once (mimicgen_pipe.stages.generate_job.resolve) into one frozen
+job, every check done before any work and before any output is claimed: the job of a small
 PyBullet run field by field, and refusals, the last check's included, that leave the
 working directory as it was and never reach the stage's claim."""
 
@@ -11,12 +11,12 @@ from pathlib import Path
 
 import pytest
 
-import envs
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.runner import attempt_seed
-from stages import generate
-from stages.generate_job import resolve
+from mimicgen_pipe import backends
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.run.executors import Executor
+from mimicgen_pipe.run.runner import attempt_seed
+from mimicgen_pipe.stages import generate
+from mimicgen_pipe.stages.generate_job import resolve
 from tests.conftest import PYBULLET_STACK, stages_copied_to
 from tests.test_imports import imported, project_modules
 
@@ -59,7 +59,7 @@ def test_a_request_resolves_into_one_checked_frozen_job(work):
         "panda",
         "D0",
     )
-    assert job.backend is envs.backend_package("pybullet")
+    assert job.backend is backends.backend_package("pybullet")
     assert (job.generate.mode, job.generate.max_attempts, job.num_demos) == (
         "fixed_attempts",
         5,
@@ -84,7 +84,7 @@ def test_a_request_resolves_into_one_checked_frozen_job(work):
 
 def far_env(backend, task, robot, *_):
     """A PyBullet env whose arm stands 3 m from the table."""
-    from envs.pybullet.env import PyBulletEnv
+    from mimicgen_pipe.backends.pybullet.env import PyBulletEnv
 
     return PyBulletEnv(task, robot, (-3.0, 0.0))
 
@@ -109,7 +109,7 @@ def test_a_refused_request_raises_from_resolve_before_any_output(
 
     monkeypatch.setattr(generate, "claim", no_claim)
     if far:
-        monkeypatch.setattr(envs, "make_env", far_env)
+        monkeypatch.setattr(backends, "make_env", far_env)
     before = tree(work)
     with pytest.raises(InputError, match=expected):
         generate.run(generate_args(work, *argv, params=params))
@@ -121,6 +121,11 @@ def test_the_stage_and_the_runner_read_no_params_and_no_back_end():
     """What a run does is the job's: the generate stage and the runner import neither params
     nor the back ends (the job module does)."""
     modules = project_modules()
-    for name in ("stages.generate", "mimicgen_pipe.runner"):
-        assert not imported(name, modules) & {"mimicgen_pipe.params", "envs"}, name
-    assert {"mimicgen_pipe.params", "envs"} <= imported("stages.generate_job", modules)
+    for name in ("mimicgen_pipe.stages.generate", "mimicgen_pipe.run.runner"):
+        assert not imported(name, modules) & {
+            "mimicgen_pipe.data.params",
+            "mimicgen_pipe.backends",
+        }, name
+    assert {"mimicgen_pipe.data.params", "mimicgen_pipe.backends"} <= imported(
+        "mimicgen_pipe.stages.generate_job", modules
+    )

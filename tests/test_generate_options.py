@@ -1,5 +1,5 @@
 """generate's numeric options stand in for params keys and are held to the same ranges as
-the params file's (mimicgen_pipe.params): one line naming the option, the value and the
+the params file's (mimicgen_pipe.data.params): one line naming the option, the value and the
 range, exit 2, before any work (a real ``mimicgen-pipe generate``)."""
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ def test_attempts_and_num_demos_together_is_one_error(tmp_path):
 
 
 def test_num_demos_and_transit_stand_in_for_their_keys():
-    from mimicgen_pipe.params import Params
-    from stages.generate_job import with_generate_options
+    from mimicgen_pipe.data.params import Params
+    from mimicgen_pipe.stages.generate_job import with_generate_options
 
     g = with_generate_options(Params(), None, None, "planned", 7).generate
     assert (g.mode, g.num_demos, g.transit) == ("guarantee", 7, "planned")
@@ -69,8 +69,8 @@ def test_train_num_demos_is_held_to_its_keys_range(tmp_path):
 def test_train_num_demos_is_one_count_or_one_per_data(tmp_path):
     import argparse
 
-    from mimicgen_pipe.params import load_params
-    from stages.train import policies
+    from mimicgen_pipe.data.params import load_params
+    from mimicgen_pipe.stages.train import policies
 
     (tmp_path / "params.yaml").write_text("task: stack_cube\ntrain: {num_demos: 300}\n")
     params = load_params(tmp_path / "params.yaml")
@@ -92,8 +92,8 @@ def test_train_num_demos_is_one_count_or_one_per_data(tmp_path):
 def test_train_num_seeds_stands_in_for_the_profiles_seeds(tmp_path):
     import argparse
 
-    from mimicgen_pipe.params import load_params
-    from stages.train import with_seeds
+    from mimicgen_pipe.data.params import load_params
+    from mimicgen_pipe.stages.train import with_seeds
 
     (tmp_path / "params.yaml").write_text("task: stack_cube\ntrain: {cpu: {seeds: [7]}}\n")
     params = load_params(tmp_path / "params.yaml")

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe import layout, pipelines
-from mimicgen_pipe.store import read_store, write_store
+from mimicgen_pipe.data import layout, pipelines
+from mimicgen_pipe.data.store import read_store, write_store
 from tests.conftest import cli
 
 REPO = Path(__file__).resolve().parents[1]

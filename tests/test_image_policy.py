@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import torch
 
-from mimicgen_pipe.policy import BCRNN, ImageEncoder, PolicyConfig, RolloutPolicy
-from mimicgen_pipe.training import load_checkpoint, save_checkpoint, train_policy
-from mimicgen_pipe.training_setup import SequenceData, TrainConfig, shift_images
+from mimicgen_pipe.learn.policy import BCRNN, ImageEncoder, PolicyConfig, RolloutPolicy
+from mimicgen_pipe.learn.training import load_checkpoint, save_checkpoint, train_policy
+from mimicgen_pipe.learn.training_setup import SequenceData, TrainConfig, shift_images
 from tests.conftest import cli
 
 SIZE = 32  # px: small images, the code path of 84

@@ -1,8 +1,9 @@
 """How the project's packages depend on each other, read from their source (nothing is
-imported): the library (mimicgen_pipe) never imports the simulator back ends (envs), no
-project modules import each other in a cycle, the source stage runs without the exporters,
-and neither the product (mimicgen_pipe, envs, stages, scripts) nor its tests import or run
-the lab's investigation scripts (lab/).
+imported): each layer of mimicgen_pipe (a folder) imports only the layers below it, so no
+layer but the stages imports the back ends, and a back end imports only the core; no project
+modules import each other in a cycle, the source stage runs without the exporters, and
+neither the product (mimicgen_pipe, scripts) nor its tests import or run the lab's
+investigation scripts (lab/).
 
 The import graph: an edge from a module to each project module it imports anywhere in its
 body, imports inside functions included; ``from a import b`` counts a, and a.b where a.b is
@@ -19,11 +20,11 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("mimicgen_pipe", "envs", "stages")
+PACKAGES = ("mimicgen_pipe",)
 
 
 def module_name(path: Path, root: Path = REPO) -> str:
-    """``mimicgen_pipe/exporters/__init__.py`` -> ``mimicgen_pipe.exporters``."""
+    """``mimicgen_pipe/formats/exporters/__init__.py`` -> ``mimicgen_pipe.formats.exporters``."""
     parts = path.relative_to(root).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
@@ -174,16 +175,84 @@ def closure(start: str, modules: Mapping[str, Path]) -> set[str]:
     return seen
 
 
-def test_the_library_never_imports_the_back_ends():
-    modules = project_modules()
-    offenders = {
-        name: sorted(
-            m for m in imported(name, modules) | loaded(name, modules) if m.split(".")[0] == "envs"
+# Each layer of the package (a folder of mimicgen_pipe/) and the layers it may import besides
+# itself; each folder's __init__ docstring says the same in words. The stages compose them all.
+LAYERS: dict[str, frozenset[str]] = {
+    "core": frozenset(),
+    "method": frozenset({"core"}),
+    "data": frozenset({"core"}),
+    "run": frozenset({"core", "method", "data"}),
+    "sources": frozenset({"core", "method", "data", "run"}),
+    "learn": frozenset({"core", "method", "data", "run"}),
+    "media": frozenset({"core", "method", "data", "run"}),
+    "formats": frozenset({"core", "method", "data", "run", "sources"}),
+    "report": frozenset({"core", "data"}),
+    "backends": frozenset({"core"}),
+    "tasks": frozenset({"core", "backends"}),
+}
+LAYERS["stages"] = frozenset(LAYERS)
+# what a layer may load by name through the registry besides what it may import: a back end
+# finds its task files (mimicgen_pipe.tasks.<backend>) when asked for one
+LOADS: dict[str, frozenset[str]] = {"backends": frozenset({"tasks"})}
+
+
+def layer(module: str) -> str | None:
+    """The layer of a module of mimicgen_pipe (its folder), None for the package itself and
+    the command line (mimicgen_pipe.cli), which are no layer."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def layer_breaks(modules: Mapping[str, Path]) -> dict[str, list[str]]:
+    """module -> the modules it imports or loads from a layer its own may not import."""
+    found = {}
+    for name in modules:
+        own = layer(name)
+        if own is None:
+            continue
+        allowed = LAYERS[own] | {own, None}
+        wrong = sorted(
+            {m for m in imported(name, modules) if layer(m) not in allowed}
+            | {m for m in loaded(name, modules) if layer(m) not in allowed | LOADS.get(own, set())}
         )
-        for name in modules
-        if name.split(".")[0] == "mimicgen_pipe"
+        if wrong:
+            found[name] = wrong
+    return found
+
+
+def test_every_module_is_in_a_layer_that_its_folder_names():
+    modules = project_modules()
+    assert {m for m in modules if layer(m) is None} == {"mimicgen_pipe", "mimicgen_pipe.cli"}
+    for folder in LAYERS:
+        doc = ast.get_docstring(
+            ast.parse((REPO / "mimicgen_pipe" / folder / "__init__.py").read_text())
+        )
+        assert doc and "Imports" in doc, f"mimicgen_pipe/{folder}/__init__.py: no import rule"
+
+
+def test_each_layer_imports_only_the_layers_below_it():
+    assert layer_breaks(project_modules()) == {}
+
+
+def test_the_layer_rule_finds_a_wrong_import(tmp_path):
+    """A back end that imports the data layer, and a core module that loads a method
+    module through the registry, are both found."""
+    pkg = tmp_path / "mimicgen_pipe"
+    for folder in ("core", "data", "method", "backends", "backends/sim"):
+        (pkg / folder).mkdir(parents=True)
+        (pkg / folder / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "data" / "params.py").write_text("")
+    (pkg / "method" / "pick.py").write_text("")
+    (pkg / "core" / "poses.py").write_text("")
+    (pkg / "backends" / "sim" / "env.py").write_text(
+        "from mimicgen_pipe.core import poses\nfrom mimicgen_pipe.data.params import x\n"
+    )
+    (pkg / "core" / "choose.py").write_text('load("mimicgen_pipe.method", "pick")\n')
+    assert layer_breaks(project_modules(tmp_path)) == {
+        "mimicgen_pipe.backends.sim.env": ["mimicgen_pipe.data.params"],
+        "mimicgen_pipe.core.choose": ["mimicgen_pipe.method.pick"],
     }
-    assert {k: v for k, v in offenders.items() if v} == {}
 
 
 def test_no_project_modules_import_each_other_in_a_cycle():
@@ -192,9 +261,11 @@ def test_no_project_modules_import_each_other_in_a_cycle():
 
 def test_the_source_stage_runs_without_the_exporters():
     modules = project_modules()
-    reached = closure("stages.source", modules)
-    assert "mimicgen_pipe.robomimic_source" in reached  # the closure follows the stage's imports
-    assert sorted(m for m in reached if m.startswith("mimicgen_pipe.exporters")) == []
+    reached = closure("mimicgen_pipe.stages.source", modules)
+    assert (
+        "mimicgen_pipe.sources.robomimic_source" in reached
+    )  # the closure follows the stage's imports
+    assert sorted(m for m in reached if m.startswith("mimicgen_pipe.formats.exporters")) == []
 
 
 def test_the_graph_sees_imports_inside_functions_and_skips_type_checking(tmp_path):
@@ -211,7 +282,7 @@ def test_the_graph_sees_imports_inside_functions_and_skips_type_checking(tmp_pat
         "from . import a\n"
     )
     (pkg / "c.py").write_text(
-        "from mimicgen_pipe.registry import load\nload('mimicgen_pipe.choices', name)\n"
+        "from mimicgen_pipe.core.registry import load\nload('mimicgen_pipe.choices', name)\n"
         "import mimicgen_pipe.b\n"
     )
     for package in PACKAGES[1:]:
@@ -231,7 +302,7 @@ def test_the_graph_sees_imports_inside_functions_and_skips_type_checking(tmp_pat
     }
 
 
-PRODUCT = ("mimicgen_pipe", "envs", "stages", "scripts")
+PRODUCT = ("mimicgen_pipe", "scripts")
 LAB_MODULE = re.compile(r"lab(\.\w+)+")  # "lab.scripts.x": a module of the lab by name
 
 
@@ -295,7 +366,9 @@ def test_neither_the_product_nor_its_tests_import_or_run_the_lab():
     """The lab (investigation scripts) builds on the product, never the other way: no
     product module depends on a lab script, and no product test covers one."""
     files = {p.relative_to(REPO).as_posix(): p for p in checked_by_the_lab_rule()}
-    assert {"mimicgen_pipe/evaluation.py", "scripts/dvc_deps.py", "tests/conftest.py"} <= set(files)
+    assert {"mimicgen_pipe/learn/evaluation.py", "scripts/dvc_deps.py", "tests/conftest.py"} <= set(
+        files
+    )
     uses = {name: lab_uses(p) for name, p in files.items()}
     assert {name: lines for name, lines in uses.items() if lines} == {}
 

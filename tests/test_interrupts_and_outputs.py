@@ -17,10 +17,10 @@ from pathlib import Path
 import pytest
 import zarr
 
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.metrics import write_metrics
-from mimicgen_pipe.outputs import check_same_run, claim, lock_file, release, run_id
-from mimicgen_pipe.params import Params, data_params
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data.metrics import write_metrics
+from mimicgen_pipe.data.outputs import check_same_run, claim, lock_file, release, run_id
+from mimicgen_pipe.data.params import Params, data_params
 from tests.conftest import PYBULLET_STACK, REPO, cli, stages_copied_to
 
 PARAMS = PYBULLET_STACK
@@ -283,8 +283,8 @@ def test_claim_is_exclusive_between_processes(tmp_path):
     can once this one lets go; no lock file stays behind."""
     out = tmp_path / "x.zarr"
     code = (
-        "import sys\nfrom mimicgen_pipe.outputs import claim\n"
-        "from mimicgen_pipe.errors import InputError\n"
+        "import sys\nfrom mimicgen_pipe.data.outputs import claim\n"
+        "from mimicgen_pipe.core.errors import InputError\n"
         "try:\n    claim(sys.argv[1])\nexcept InputError as e:\n    print(e); sys.exit(2)"
     )
     env = dict(os.environ, PYTHONPATH=str(REPO))
@@ -307,11 +307,12 @@ def test_a_helper_child_dies_with_its_parent_even_on_sigkill(tmp_path):
     """A motion planner's child process (interrupts.die_with_parent) ends when the stage
     that started it is killed with SIGKILL, which runs none of the stage's own cleanup."""
     child = (
-        "from mimicgen_pipe.interrupts import die_with_parent; die_with_parent(); "
+        "from mimicgen_pipe.core.interrupts import die_with_parent; die_with_parent(); "
         "import time; time.sleep(120)"
     )
     parent = (
-        "import subprocess, sys, time; from mimicgen_pipe.interrupts import child_environment; "
+        "import subprocess, sys, time; "
+        "from mimicgen_pipe.core.interrupts import child_environment; "
         f"p = subprocess.Popen([sys.executable, '-c', {child!r}], env=child_environment()); "
         "print(p.pid, flush=True); time.sleep(120)"
     )

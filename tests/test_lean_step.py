@@ -1,6 +1,6 @@
-"""The lean ManiSkill step (envs/maniskill/lean.py, ``maniskill.lean_step``) is ManiSkill's
-``env.step``: from the same state and the same actions, the stock step and the lean step set
-the same joint drive targets and reach the same simulation state, bit for bit, with the same
+"""The lean ManiSkill step (mimicgen_pipe/backends/maniskill/lean.py, ``maniskill.lean_step``) is
+ManiSkill's ``env.step``: from the same state and the same actions, the stock step and the lean step
+set the same joint drive targets and reach the same simulation state, bit for bit, with the same
 subtask signals and success; generation on either gives the same attempts; and episodes
 generated on the lean path succeed when replayed through plain ManiSkill (``gym.make``,
 ``env.step``). Needs SAPIEN; marked ``sim`` (the 200-episode replay also ``slow``)."""
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe.data.store import read_store
 from tests.conftest import cli
 
 pytestmark = pytest.mark.sim
@@ -18,7 +18,7 @@ pytestmark = pytest.mark.sim
 
 @pytest.fixture(scope="module")
 def stock_and_lean():
-    from envs import make_env
+    from mimicgen_pipe.backends import make_env
 
     pair = [make_env("maniskill", "stack_cube", lean_step=lean) for lean in (False, True)]
     yield pair
@@ -64,11 +64,11 @@ def test_generated_episodes_with_action_noise_step_the_same(pipeline, stock_and_
 
 
 def test_generation_makes_the_same_attempts_on_either_step(pipeline, stock_and_lean):
-    import envs
-    from mimicgen_pipe.generation import GenerationConfig, run_attempt
-    from mimicgen_pipe.runner import attempt_seed, source_demos
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+    from mimicgen_pipe.run.runner import attempt_seed, source_demos
 
-    spec = envs.task_spec("maniskill", "stack_cube")
+    spec = backends.task_spec("maniskill", "stack_cube")
     sources = source_demos(read_store(pipeline / "data/parsed/stack_cube.zarr"), spec.objects)
     for env in stock_and_lean:
         env.rebuild()  # both from a fresh scene, as a block of attempts starts
@@ -92,8 +92,8 @@ def replay_in_stock_maniskill(store, episodes: range) -> list[bool]:
     import gymnasium as gym
     import torch
 
-    from envs import load_task
-    from envs.maniskill.env import ManiSkillEnv
+    from mimicgen_pipe.backends import load_task
+    from mimicgen_pipe.backends.maniskill.env import ManiSkillEnv
 
     env = gym.make(
         ManiSkillEnv.env_id_for(load_task("maniskill", "stack_cube")),

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe.store import write_store
+from mimicgen_pipe.data.store import write_store
 from tests.conftest import REPO, cli
 
 LEARNERS = REPO / ".venv-learners"
@@ -56,9 +56,9 @@ def learnable_store(path: Path, images: bool) -> None:
     observations (so that a few training steps lower the loss); with ``images``, an observed
     one: images of both cameras in which a square moves with the end effector (across the
     front view, up and down the wrist view)."""
-    import envs
+    from mimicgen_pipe import backends
 
-    keys = envs.task_spec("maniskill", TASK).obs_keys
+    keys = backends.task_spec("maniskill", TASK).obs_keys
     rng = np.random.default_rng(0)
     weights = rng.normal(size=(sum(map(_dims, keys)), 6)) / 4
     h, w = IMAGE_SIZE
@@ -135,7 +135,7 @@ def short_robomimic_config(name: str, out: Path, epochs: int, steps: int) -> Pat
 def robomimic_losses(stdout: str) -> list[float]:
     """The training loss robomimic's train.py prints after each epoch, read as the
     train_robomimic stage reads robomimic's log."""
-    from stages.train_robomimic import epoch_losses
+    from mimicgen_pipe.stages.train_robomimic import epoch_losses
 
     return [loss for _, loss in epoch_losses(stdout)]
 
@@ -177,10 +177,10 @@ def test_robomimic_trains_bc_rnn_on_our_export(exports, tmp_path, config, store,
 
 @pytest.mark.slow
 def test_the_robomimic_trainer_fails_a_run_that_saves_no_checkpoint(exports, tmp_path):
-    """mimicgen_pipe/external/_robomimic_train.py (the README's robomimic command) exits 1
+    """mimicgen_pipe/formats/external/_robomimic_train.py (the README's robomimic command) exits 1
     after a run whose epochs miss every save (robomimic's train.py exits 0), and saves the
     last epoch of a run it shortens itself (--num_epochs)."""
-    from mimicgen_pipe.external import _robomimic_train
+    from mimicgen_pipe.formats.external import _robomimic_train
 
     def run(out: Path, *extra: str) -> subprocess.CompletedProcess:
         """One epoch of one step, a checkpoint every 2 epochs, into ``out``."""
@@ -241,7 +241,7 @@ def test_robomimic_training_normalizes_each_step_once(exports, tmp_path):
     postprocess_batch_for_training) and a rollout step once; with train_robomimic's patch,
     robomimic's own dataset and batch processing feed the network (raw - mean) / std, the
     rollout's input, once."""
-    from mimicgen_pipe.external import _robomimic_train
+    from mimicgen_pipe.formats.external import _robomimic_train
 
     res = learner("python", str(CHECKS / "check_robomimic_normalization.py"),
                   _robomimic_train.__file__, str(exports["generated"] / "demos.hdf5"),

@@ -8,17 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe import poses
-from mimicgen_pipe.controller import actions_to_target_poses
-from mimicgen_pipe.generation import replay_actions
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe.core import poses
+from mimicgen_pipe.core.controller import actions_to_target_poses
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.generation import replay_actions
 
 pytestmark = pytest.mark.sim
 
 
 @pytest.fixture(scope="module")
 def env():
-    from envs import make_env
+    from mimicgen_pipe.backends import make_env
 
     e = make_env("maniskill", "stack_cube")
     yield e
@@ -28,7 +28,7 @@ def env():
 def test_action_to_target_matches_the_simulators_controller():
     """Our conversion against ManiSkill's own: the arm controller's target pose after an
     action equals actions_to_target_poses (including the inverted rotation sign)."""
-    from envs import make_env
+    from mimicgen_pipe.backends import make_env
 
     env = make_env("maniskill", "stack_cube", lean_step=False)  # the controller's own state
     rng = np.random.default_rng(0)
@@ -173,7 +173,7 @@ def test_a_converted_demo_that_starts_from_another_plan_is_dropped(env, tmp_path
     and counts as a dropped plan."""
     import h5py
 
-    from envs.maniskill import source
+    from mimicgen_pipe.backends.maniskill import source
 
     def state_rows(seed: int, steps: int) -> dict:
         env.reset(seed, "D0")
@@ -216,9 +216,9 @@ def test_poses_and_observation_derived_after_the_attempt_equal_reads_at_every_st
     attempt (the env's state_layout), and the observation from them, all steps at once.
     Recorded the old way, read from the env before every step, the attempt must be the same
     bit for bit; and the layout must point at what object_poses() and gripper_state() read."""
-    from envs import task_spec
-    from mimicgen_pipe.generation import GenerationConfig, run_attempt
-    from mimicgen_pipe.runner import attempt_seed, source_demos
+    from mimicgen_pipe.backends import task_spec
+    from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+    from mimicgen_pipe.run.runner import attempt_seed, source_demos
     from tests.conftest import same_attempt
 
     spec = task_spec("maniskill", "stack_cube")

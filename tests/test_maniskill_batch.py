@@ -1,6 +1,6 @@
-"""ManiSkill's batched form (envs/maniskill/batch.py) without a GPU: a batch of one scene on
-physx_cpu runs ManiSkill's own step, reset and evaluation through the batch protocol, and
-makes the same attempts, bit for bit, as the one-at-a-time env with ManiSkill's own step
+"""ManiSkill's batched form (mimicgen_pipe/backends/maniskill/batch.py) without a GPU: a batch of
+one scene on physx_cpu runs ManiSkill's own step, reset and evaluation through the batch protocol,
+and makes the same attempts, bit for bit, as the one-at-a-time env with ManiSkill's own step
 (maniskill.lean_step: false), through the engine and through the generate loop's blocks;
 and every batch the back end cannot run is refused before any work."""
 
@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 import torch
 
-import envs
-from mimicgen_pipe.batched import replay_batched, run_batched
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.generation import GenerationConfig, run_attempt
-from mimicgen_pipe.params import Params, data_params
-from mimicgen_pipe.runner import AttemptJob, attempt_seed, generate, source_demos
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe import backends
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data.params import Params, data_params
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.batched import replay_batched, run_batched
+from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
+from mimicgen_pipe.run.executors import Executor
+from mimicgen_pipe.run.runner import AttemptJob, attempt_seed, generate, source_demos
 from tests.conftest import cli, same_attempt
 
 pytestmark = pytest.mark.sim
@@ -29,7 +29,7 @@ TASK, VARIANT, N_SEEDS = "stack_cube", "D1", 3
 
 @pytest.fixture(scope="module")
 def sources(pipeline):
-    spec = envs.task_spec("maniskill", TASK)
+    spec = backends.task_spec("maniskill", TASK)
     return spec, source_demos(read_store(pipeline / f"data/parsed/{TASK}.zarr"), spec.objects)
 
 
@@ -37,7 +37,7 @@ def sources(pipeline):
 def one_at_a_time(sources):
     """The attempts of the seeds on the one-scene env with ManiSkill's own step."""
     spec, demos = sources
-    env = envs.make_env("maniskill", TASK, lean_step=False)
+    env = backends.make_env("maniskill", TASK, lean_step=False)
     env.rebuild()
     seeds = [attempt_seed(0, VARIANT, i) for i in range(N_SEEDS)]
     out = [run_attempt(env, demos, spec, GenerationConfig(), VARIANT, s) for s in seeds]
@@ -48,7 +48,7 @@ def one_at_a_time(sources):
 def test_a_batch_of_one_on_the_cpu_makes_the_stock_steps_attempts(sources, one_at_a_time):
     spec, demos = sources
     seeds, expected = one_at_a_time
-    batch = envs.make_batch_env("maniskill", TASK, "panda", 1, "physx_cpu")
+    batch = backends.make_batch_env("maniskill", TASK, "panda", 1, "physx_cpu")
     try:
         got = dict(run_batched(batch, demos, spec, GenerationConfig(), VARIANT, seeds))
         slot = batch.slot(0)
@@ -67,7 +67,7 @@ def test_a_batch_of_one_on_the_cpu_makes_the_stock_steps_attempts(sources, one_a
 def test_kept_attempts_replay_to_success_on_the_batch(one_at_a_time):
     _, attempts = one_at_a_time
     kept = [(a.initial_state, a.steps["actions"]) for a in attempts if a.success]
-    batch = envs.make_batch_env("maniskill", TASK, "panda", 1, "physx_cpu")
+    batch = backends.make_batch_env("maniskill", TASK, "panda", 1, "physx_cpu")
     try:
         assert replay_batched(batch, kept) == [True] * len(kept)
         # the last replay left the scene where its episode ended: not where it began
@@ -82,12 +82,12 @@ def test_generate_runs_blocks_on_the_batch(sources, one_at_a_time):
     spec, demos = sources
     seeds, expected = one_at_a_time
     job = AttemptJob(
-        functools.partial(envs.make_env, "maniskill", TASK, "panda", False),
+        functools.partial(backends.make_env, "maniskill", TASK, "panda", False),
         demos,
         spec,
         GenerationConfig(),
         VARIANT,
-        make_batch=functools.partial(envs.make_batch_env, "maniskill", TASK, "panda", 1, None),
+        make_batch=functools.partial(backends.make_batch_env, "maniskill", TASK, "panda", 1, None),
         num_envs=1,
     )
     result = generate(job, seeds, Executor("local", 1))
@@ -129,13 +129,13 @@ def test_batches_the_back_end_cannot_run_are_refused(
     backend, task, robot, num_envs, sim, transit, message
 ):
     with pytest.raises(InputError, match=message):
-        envs.check_batched(backend, task, robot, num_envs, sim, transit)
+        backends.check_batched(backend, task, robot, num_envs, sim, transit)
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="the refusal is for machines without CUDA")
 def test_physx_cuda_without_cuda_is_refused():
     with pytest.raises(InputError, match="no CUDA device"):
-        envs.check_batched("maniskill", TASK, "panda", 256, "physx_cuda", "linear")
+        backends.check_batched("maniskill", TASK, "panda", 256, "physx_cuda", "linear")
 
 
 @pytest.mark.parametrize(

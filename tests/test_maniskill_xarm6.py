@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mimicgen_pipe import poses
+from mimicgen_pipe.core import poses
 
 pytestmark = pytest.mark.sim
 
 
 @pytest.fixture(scope="module")
 def env():
-    from envs import make_env
+    from mimicgen_pipe.backends import make_env
 
     e = make_env("maniskill", "stack_cube", "xarm6")
     yield e
@@ -20,7 +20,7 @@ def env():
 
 
 def test_make_env_gives_the_xarm6(env):
-    from envs.maniskill.xarm6 import BASE_XYZ, XArm6ManiSkillEnv
+    from mimicgen_pipe.backends.maniskill.xarm6 import BASE_XYZ, XArm6ManiSkillEnv
 
     assert isinstance(env, XArm6ManiSkillEnv)
     assert env.robot == "xarm6" and env.spec.name == "stack_cube"

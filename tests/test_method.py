@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from mimicgen_pipe import poses
-from mimicgen_pipe.generation import (
+from mimicgen_pipe.core import poses
+from mimicgen_pipe.core.taskspec import SubtaskSpec
+from mimicgen_pipe.method.generation import (
     action_noise,
     add_action_noise,
     interpolation,
@@ -12,9 +13,8 @@ from mimicgen_pipe.generation import (
     select_source,
     transform_segment,
 )
-from mimicgen_pipe.segments import segment_bounds, split_into_segments, validate_segments
-from mimicgen_pipe.selection import Candidates
-from mimicgen_pipe.taskspec import SubtaskSpec
+from mimicgen_pipe.method.segments import segment_bounds, split_into_segments, validate_segments
+from mimicgen_pipe.method.selection import Candidates
 
 
 def random_poses(rng, n):

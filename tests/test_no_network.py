@@ -1,4 +1,4 @@
-"""Nothing in a policy trained elsewhere reaches outside it (mimicgen_pipe.external): a
+"""Nothing in a policy trained elsewhere reaches outside it (mimicgen_pipe.formats.external): a
 pretrained initialisation its config asks for is turned off, what would fetch a model by
 name is refused, every file a LeRobot folder makes lerobot read lies inside the folder
 (covered by its sha256), and the policy server runs with the Hugging Face libraries
@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from mimicgen_pipe import external
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.external import ExternalPolicy, _serve, parse_policy
-from mimicgen_pipe.external import lerobot as lerobot_format
-from mimicgen_pipe.external import robomimic as robomimic_format
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.formats import external
+from mimicgen_pipe.formats.external import ExternalPolicy, _serve, parse_policy
+from mimicgen_pipe.formats.external import lerobot as lerobot_format
+from mimicgen_pipe.formats.external import robomimic as robomimic_format
 from tests.test_external_policy import stand_in
 
 NORMALIZER = "policy_preprocessor_step_3_normalizer_processor.safetensors"

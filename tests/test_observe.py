@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import envs
-from mimicgen_pipe import store as store_module
+from mimicgen_pipe import backends
 from mimicgen_pipe.cli import main
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.interrupts import Interrupted
-from mimicgen_pipe.store import open_store, read_store, write_store
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.interrupts import Interrupted
+from mimicgen_pipe.data import store as store_module
+from mimicgen_pipe.data.store import open_store, read_store, write_store
 
 CAMERAS = ("agentview", "eye_in_hand")
 SIZE = 32  # px: small images, the same code path as 84
@@ -27,7 +27,7 @@ SIZE = 32  # px: small images, the same code path as 84
 def random_store(path: Path, backend: str, task: str, lengths: list[int]) -> Path:
     """A generated-kind store of episodes of random arm motions (every step's env_state, the
     actions and end-effector poses), one episode per entry of ``lengths``."""
-    env = envs.make_env(backend, task, "panda")
+    env = backends.make_env(backend, task, "panda")
     rng = np.random.default_rng(0)
     steps, seeds = [], []
     for k, n in enumerate(lengths):
@@ -103,7 +103,7 @@ def test_images_are_the_states_rendered(
         assert np.array_equal(view.read_rows(key, [0, 1]), value[:n])
     assert np.array_equal(view.episode_field("seed"), source.episodes["seed"][:2])
     images = {c: view.read_rows(f"obs/{c}_image", [0, 1]) for c in CAMERAS}
-    renderer = envs.make_renderer(backend, task, "panda", SIZE, SIZE, CAMERAS)
+    renderer = backends.make_renderer(backend, task, "panda", SIZE, SIZE, CAMERAS)
     for im in images.values():
         assert im.shape == (n, SIZE, SIZE, 3) and im.dtype == np.uint8
         assert im[0].std() > 5  # a picture, not a flat colour
@@ -111,7 +111,7 @@ def test_images_are_the_states_rendered(
     for t in (0, 5, n - 1):  # row t is env_state row t
         fresh = renderer.images(source.data["env_state"][t])
         assert all(np.array_equal(images[c][t], fresh[c]) for c in CAMERAS)
-    assert view.attrs["camera_calibration"] == envs.camera_calibration(CAMERAS, SIZE, SIZE)
+    assert view.attrs["camera_calibration"] == backends.camera_calibration(CAMERAS, SIZE, SIZE)
     for camera, calib in view.attrs["camera_calibration"].items():  # the renderer's cameras
         k, world_to_camera = renderer_camera(renderer, backend, camera)
         np.testing.assert_allclose(calib["intrinsics"], k, rtol=1e-5)
@@ -125,7 +125,7 @@ def test_images_are_the_states_rendered(
 
 def hand_pose(renderer, backend: str) -> np.ndarray:
     """The panda_hand link's 4x4 world pose in the renderer's scene now."""
-    from mimicgen_pipe import poses
+    from mimicgen_pipe.core import poses
 
     if backend == "maniskill":
         hand = renderer._env.unwrapped.agent.robot.links_map["panda_hand"].pose
@@ -162,24 +162,24 @@ def test_same_bytes_with_one_and_two_workers(pybullet_store, tmp_path, monkeypat
 
 
 def test_a_resumed_run_gives_the_same_bytes(pybullet_store, tmp_path, monkeypatch, capsys):
-    import mimicgen_pipe.camera_images as library
-    import stages.observe
+    import mimicgen_pipe.media.camera_images as library
+    import mimicgen_pipe.stages.observe as observe_stage
 
     monkeypatch.chdir(tmp_path)
     assert observe(tmp_path, pybullet_store, "whole.zarr", "pybullet", "stack")[0] == 0
     whole = tmp_path / "whole.zarr"
-    write = stages.observe.write_observed
+    write = observe_stage.write_observed
 
     def interrupted_after_one_block(writer, view, job, images, blocks, *rest):
         next(images)  # the first block, saved in the work directory
         raise Interrupted(signal.SIGTERM)
 
-    monkeypatch.setattr(stages.observe, "write_observed", interrupted_after_one_block)
+    monkeypatch.setattr(observe_stage, "write_observed", interrupted_after_one_block)
     code, _ = observe(tmp_path, pybullet_store, "again.zarr", "pybullet", "stack")
     assert code == 143 and "interrupted (SIGTERM); nothing written" in capsys.readouterr().err
     assert not (tmp_path / "again.zarr").exists()
     assert len(list((tmp_path / ".again.zarr.work").glob("block-*.npz"))) == 1
-    monkeypatch.setattr(stages.observe, "write_observed", write)
+    monkeypatch.setattr(observe_stage, "write_observed", write)
     rendered = []
     render_block = library._render_block
     monkeypatch.setattr(library, "_render_block", lambda b: rendered.append(b) or render_block(b))

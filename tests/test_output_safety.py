@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 import zarr
 
-from mimicgen_pipe import outputs
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.layout import failed_store
-from mimicgen_pipe.metrics import IDENTITY_FIELDS, write_metrics
-from mimicgen_pipe.outputs import claim, release, store_kind
-from mimicgen_pipe.store import write_store
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data import outputs
+from mimicgen_pipe.data.layout import failed_store
+from mimicgen_pipe.data.metrics import IDENTITY_FIELDS, write_metrics
+from mimicgen_pipe.data.outputs import claim, release, store_kind
+from mimicgen_pipe.data.store import write_store
 from tests.conftest import PYBULLET_STACK, cli, stages_copied_to
 from tests.test_interrupts_and_outputs import own_lines
 
@@ -143,8 +143,8 @@ def _commit_in_child(tmp_path: Path, kill_at: int | None, value: float) -> int:
     code = f"""
 import numpy as np
 from pathlib import Path
-from mimicgen_pipe.outputs import claim, output_set
-from mimicgen_pipe.metrics import write_metrics
+from mimicgen_pipe.data.outputs import claim, output_set
+from mimicgen_pipe.data.metrics import write_metrics
 from tests.test_output_safety import small_store
 d = Path({str(tmp_path)!r})
 claim(d / "k.zarr", d / "f.zarr", d / "m.json")

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe import outputs
-from mimicgen_pipe.errors import InputError, StageError
-from mimicgen_pipe.outputs import claim, journal_of, lock_file, release, store_kind
-from mimicgen_pipe.store import open_store, read_store, write_store
+from mimicgen_pipe.core.errors import InputError, StageError
+from mimicgen_pipe.data import outputs
+from mimicgen_pipe.data.outputs import claim, journal_of, lock_file, release, store_kind
+from mimicgen_pipe.data.store import open_store, read_store, write_store
 from tests.test_output_safety import tree_digest, user_files
 
 
@@ -137,7 +137,7 @@ class _DeadRay:
 def test_a_dead_raylet_is_one_line_of_ours_and_the_locks_are_released(tmp_path, monkeypatch):
     """Ray's own errors (a raylet or worker that died), wherever Ray raises them, become one
     StageError line, and the claims of the stage are released (no lock file left)."""
-    from mimicgen_pipe.executors import ray as ray_executor
+    from mimicgen_pipe.run.executors import ray as ray_executor
 
     out = tmp_path / "m.json"
     died = ray.exceptions.LocalRayletDiedError()

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from mimicgen_pipe import poses
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.store import read_store, write_store
+from mimicgen_pipe.core import poses
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.data.store import read_store, write_store
 
 
 def write(tmp_path, text):
@@ -81,7 +81,7 @@ def test_bad_params_name_the_key(tmp_path, text, needle):
     ],
 )
 def test_the_scaling_task_is_a_suite_task_with_its_demos(tmp_path, scaling, needle):
-    from stages import check_variants
+    from mimicgen_pipe.stages import check_variants
 
     suite = "suite: {tasks: [place_sphere], policy_tasks: [place_sphere], scaling: "
     with pytest.raises(InputError, match=needle):
@@ -92,7 +92,7 @@ def test_the_scaling_task_is_a_suite_task_with_its_demos(tmp_path, scaling, need
 
 def test_a_transfer_policy_task_is_a_transfer_task(tmp_path):
     """transfer.policy_tasks' policy data comes from transfer's own source demos."""
-    from stages import check_variants
+    from mimicgen_pipe.stages import check_variants
 
     text = "transfer: {tasks: [stack, stack_three], policy_tasks: [%s]}"
     with pytest.raises(InputError, match="transfer.policy_tasks: 'square_peg' is not in "
@@ -134,8 +134,8 @@ def test_out_of_range_seeds_and_odd_keys_name_the_key(tmp_path, text, needle):
 
 
 def test_the_largest_seeds_pass_and_every_derived_seed_stays_valid(tmp_path):
-    from mimicgen_pipe.evaluation import evaluation_seed
-    from mimicgen_pipe.runner import attempt_seed
+    from mimicgen_pipe.learn.evaluation import evaluation_seed
+    from mimicgen_pipe.run.runner import attempt_seed
 
     top = 2**31 - 1
     p = load_params(

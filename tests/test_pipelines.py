@@ -13,7 +13,7 @@ import networkx as nx
 import pytest
 import yaml
 
-from mimicgen_pipe import source_inputs
+from mimicgen_pipe.sources import source_inputs
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -54,12 +54,12 @@ def rerun(
     """Stages `dvc exp run <pipeline> -S <params_file>:key=...` re-runs: those listing ``key``
     (or its section) as a param of that file, and everything downstream of them."""
     pool = considered(graph, pipeline)
-    # the code stage checks the whole params file on any edit, but writes the same manifests,
+    # the check stage checks the whole params file on any edit, but writes the same stamp,
     # so nothing downstream of it re-runs for a params edit
     changed = {
         s
         for s in pool
-        if s.addressing.rpartition(":")[2] != "code_deps"
+        if s.addressing.rpartition(":")[2] != "check"
         and any(key == n or key.startswith(n + ".") for n in param_names(s, params_file))
     }
     hit = changed.union(*(nx.ancestors(graph, s) & pool for s in changed))
@@ -253,10 +253,13 @@ def test_editing_a_brought_in_demo_file_makes_dvc_rerun_its_source_stage(tmp_pat
     (a stand-in command): a file of a pipeline's inputs folder, named by source.from_file,
     edited in place (a demo dropped) makes `dvc status` list that pipeline's source stage."""
     work = tmp_path / "repo"
+    # the stages' code deps and the check stage's stamps, as committed
+    shutil.copytree(REPO / "mimicgen_pipe", work / "mimicgen_pipe",
+                    ignore=shutil.ignore_patterns("__pycache__"))  # fmt: skip
     for folder in ("", "quickstart"):
         real = yaml.safe_load((REPO / folder / "dvc.yaml").read_text())
-        (work / folder / "code_deps").mkdir(parents=True)
-        (work / folder / "code_deps/source.txt").write_text("manifest\n")
+        (work / folder).mkdir(parents=True, exist_ok=True)
+        shutil.copy(REPO / folder / "params.checked", work / folder / "params.checked")
         shutil.copytree(REPO / folder / "inputs", work / folder / "inputs")
         (work / folder / "inputs/demo.h5").write_bytes(b"demo 1, demo 2")
         params = (REPO / folder / "params.yaml").read_text()

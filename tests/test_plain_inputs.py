@@ -18,9 +18,14 @@ import h5py
 import numpy as np
 import pytest
 
-from envs.maniskill.source import TrajectoryFileEpisode, read_trajectory_file, state_for_env
-from mimicgen_pipe import plain_files, robomimic_source
-from mimicgen_pipe.errors import InputError
+from mimicgen_pipe.backends.maniskill.source import (
+    TrajectoryFileEpisode,
+    read_trajectory_file,
+    state_for_env,
+)
+from mimicgen_pipe.core import plain_files
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.sources import robomimic_source
 from tests.test_user_files import one_line, robomimic_file, trajectory_file
 
 STEPS = 5  # of every crafted demo
@@ -153,7 +158,7 @@ def test_a_virtual_dataset_over_the_file_itself_is_read(tmp_path, reader):
 
 
 def test_train_robomimic_refuses_such_a_dataset_before_robomimic_starts(tmp_path, monkeypatch):
-    from stages import train_robomimic
+    from mimicgen_pipe.stages import train_robomimic
 
     def no_robomimic(*args, **kwargs):
         raise AssertionError("robomimic was started")
@@ -279,10 +284,13 @@ def test_the_largest_seed_and_none_are_read(tmp_path, reader):
 
 def test_a_source_store_of_an_unknown_robot_is_refused():
     """Its robot attribute would be recorded as the generated stores' source_robot."""
-    import envs
-    from stages.generate_job import check_source_attrs
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.stages.generate_job import check_source_attrs
 
-    spec, control = envs.task_spec("pybullet", "stack"), envs.backend_package("pybullet").CONTROL
+    spec, control = (
+        backends.task_spec("pybullet", "stack"),
+        backends.backend_package("pybullet").CONTROL,
+    )
     attrs = {"backend": "pybullet", "control_mode": control[0], "control_freq": control[1],
              "objects": list(spec.objects), "robot": "panda"}  # fmt: skip
     check_source_attrs(attrs, Path("p.zarr"), "pybullet", spec, control)
@@ -296,7 +304,7 @@ def test_a_source_store_of_an_unknown_robot_is_refused():
 
 
 def fake_env() -> SimpleNamespace:
-    """What envs.maniskill.source.state_for_env reads of an env: its state dict's layout
+    """What backends.maniskill.source.state_for_env reads of an env: its state dict's layout
     (as ManiSkill's StackCube with the Panda has it), robot and task."""
     layout = {"actors": {"table-workspace": np.zeros((1, 13)), "cubeA": np.zeros((1, 13)),
                          "cubeB": np.zeros((1, 13))},
@@ -365,7 +373,7 @@ def test_a_huge_declared_shape_is_refused_before_reading(tmp_path, reader, rows,
 def test_a_robomimic_export_with_images_is_plain(tmp_path):
     """The export's own file (gzip images, next_obs images as virtual datasets over the
     file's own rows) passes every check and reads back whole."""
-    from mimicgen_pipe import exporters
+    from mimicgen_pipe.formats import exporters
     from tests.test_export import CAMERAS, export_info, synthetic_store
 
     store = synthetic_store(tmp_path / "g.zarr", cameras=CAMERAS)

@@ -7,16 +7,15 @@ import numpy as np
 import pytest
 import torch
 
-from mimicgen_pipe import poses
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.evaluation import EVAL_SEED_BASE, evaluated_checkpoints, evaluation_seed
-from mimicgen_pipe.metrics import evaluation_metrics
-from mimicgen_pipe.observations import low_dim_observation, observation_dims, observation_keys
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy
-from mimicgen_pipe.runner import attempt_seed
-from mimicgen_pipe.store import write_store
-from mimicgen_pipe.training import (
+from mimicgen_pipe.core import poses
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.observations import low_dim_observation, observation_dims, observation_keys
+from mimicgen_pipe.data.metrics import evaluation_metrics
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.data.store import write_store
+from mimicgen_pipe.learn.evaluation import EVAL_SEED_BASE, evaluated_checkpoints, evaluation_seed
+from mimicgen_pipe.learn.policy import BCRNN, PolicyConfig, RolloutPolicy
+from mimicgen_pipe.learn.training import (
     SequenceData,
     TrainConfig,
     load_checkpoint,
@@ -27,6 +26,7 @@ from mimicgen_pipe.training import (
     train_policy,
     window_index,
 )
+from mimicgen_pipe.run.runner import attempt_seed
 
 torch.set_num_threads(1)  # tiny models: a second thread only adds synchronisation
 

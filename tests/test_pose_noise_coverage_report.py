@@ -10,18 +10,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe import poses
-from mimicgen_pipe.coverage import reset_bounds, support_coverage, uniform_coverage
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.pose_noise import (
+from mimicgen_pipe.core import poses
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.coverage import reset_bounds, support_coverage, uniform_coverage
+from mimicgen_pipe.method.pose_noise import (
     PoseNoise,
     generation_rng,
     perturb_pose,
     pose_noise_level,
 )
-from mimicgen_pipe.store import read_store
-from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
 from tests.test_cli_errors import run_bad
 
 REPO = Path(__file__).resolve().parents[1]
@@ -156,7 +156,7 @@ def test_generation_sees_noisy_poses_and_records_true_ones(pipeline, tmp_path):
     """pose_noise perturbs only the object poses of a new store; generate transforms segments
     with the perturbed source pose and a perturbed new-scene pose drawn from the attempt's
     pose-noise stream, and records the simulator's true poses."""
-    from stages import generate, pose_noise
+    from mimicgen_pipe.stages import generate, pose_noise
 
     parsed = pipeline / "data/parsed/stack_cube.zarr"
     before = read_store(parsed)
@@ -207,7 +207,7 @@ def test_generation_sees_noisy_poses_and_records_true_ones(pipeline, tmp_path):
 
 @pytest.mark.sim
 def test_coverage_and_report_stages_on_the_pipeline(pipeline, tmp_path):
-    from stages import coverage, report
+    from mimicgen_pipe.stages import coverage, report
 
     metrics = tmp_path / "metrics"
     metrics.mkdir()

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from mimicgen_pipe import poses
-from mimicgen_pipe.controller import (
+from mimicgen_pipe.core import poses
+from mimicgen_pipe.core.controller import (
     DeltaPoseController,
     actions_to_target_poses,
     target_poses_to_actions,

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 from tqdm import tqdm
 
-from envs.maniskill.source import PLANNED, follow_planner, planned_counts
-from mimicgen_pipe import camera_images, rollout_progress
-from mimicgen_pipe.camera_images import ObserveJob
-from mimicgen_pipe.rollout_progress import read_counts
-from mimicgen_pipe.store import write_store
+from mimicgen_pipe.backends.maniskill.source import PLANNED, follow_planner, planned_counts
+from mimicgen_pipe.data.store import write_store
+from mimicgen_pipe.media import camera_images
+from mimicgen_pipe.media.camera_images import ObserveJob
+from mimicgen_pipe.run import rollout_progress
+from mimicgen_pipe.run.rollout_progress import read_counts
 
 
 @pytest.mark.parametrize(
@@ -87,7 +88,7 @@ def test_generates_time_left_settles_when_attempts_come_back_in_bursts():
     """Two blocks of 5 demos, at 20 s and at 40 s, each counted demo by demo within a
     millisecond: the time left for the other 10 is taken from the mean rate so far (40 s),
     not from a moving average that the bursts pull towards 0 s."""
-    from mimicgen_pipe.runner import attempts_bar
+    from mimicgen_pipe.run.runner import attempts_bar
 
     now = [0.0]
     bar = attempts_bar(20, "demo", "generate", file=io.StringIO(), mininterval=0)

@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe import poses
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.kinematics import forward_kinematics, inverse_kinematics
+from mimicgen_pipe.core import poses
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.kinematics import forward_kinematics, inverse_kinematics
 from tests.conftest import PYBULLET_STACK, cli, replay_first_episodes, stages_copied_to
 
 pytest.importorskip("pybullet")
 
-from envs.pybullet.robots import (  # noqa: E402
+from mimicgen_pipe.backends.pybullet.robots import (  # noqa: E402
     HOME_TCP,
     ROBOTS,
     robot_chain,
@@ -92,7 +92,7 @@ def test_missing_urdf_and_unknown_robot_are_input_errors():
 
 @pytest.fixture(scope="module")
 def stack_envs():
-    from envs.pybullet.env import PyBulletEnv
+    from mimicgen_pipe.backends.pybullet.env import PyBulletEnv
 
     envs = {arm: PyBulletEnv("stack", arm) for arm in ARMS}
     yield envs
@@ -135,8 +135,8 @@ def test_controller_round_trip_converges(arm, stack_envs):
 @pytest.mark.sim
 @pytest.mark.parametrize("task", ["stack", "stack_three", "square_peg"])
 def test_demonstrator_succeeds_and_is_deterministic(task):
-    from envs.pybullet.demos import demonstrate
-    from envs.pybullet.env import PyBulletEnv
+    from mimicgen_pipe.backends.pybullet.demos import demonstrate
+    from mimicgen_pipe.backends.pybullet.env import PyBulletEnv
 
     env = PyBulletEnv(task, "panda")
     demos = [demonstrate(env, seed) for seed in range(3)]
@@ -166,7 +166,7 @@ def transfer_run(tmp_path_factory, pybullet_stack) -> Path:
 
 @pytest.mark.sim
 def test_transfer_end_to_end(transfer_run):
-    from mimicgen_pipe.store import read_store
+    from mimicgen_pipe.data.store import read_store
 
     for robot in ("iiwa", "panda"):
         m = json.loads((transfer_run / f"metrics/generate_stack_D0_{robot}.json").read_text())
@@ -182,8 +182,8 @@ def test_transfer_end_to_end(transfer_run):
 
 @pytest.mark.sim
 def test_generated_episodes_succeed_when_replayed(transfer_run):
-    from envs import make_env
-    from mimicgen_pipe.store import read_store
+    from mimicgen_pipe.backends import make_env
+    from mimicgen_pipe.data.store import read_store
 
     store = read_store(transfer_run / "data/generated/stack_D0_iiwa.zarr", ["actions"])
     # through make_env, which puts numpy's BLAS on one thread as the generating workers
@@ -197,7 +197,7 @@ def test_generated_episodes_succeed_when_replayed(transfer_run):
 @pytest.mark.sim
 def test_generation_is_deterministic(transfer_run):
     """The same seed gives the same dataset: generate again into another store."""
-    from mimicgen_pipe.store import read_store
+    from mimicgen_pipe.data.store import read_store
 
     cli(
         "generate", "--robot", "iiwa", "--variant", "D0", "--attempts", "8",
@@ -226,12 +226,12 @@ def test_unknown_robot_is_one_clear_error(transfer_run):
 def test_unreachable_workspace_is_one_clear_error(transfer_run, monkeypatch, capsys):
     """An arm whose base stands 3 m from the table: the workspace check stops generation
     before any attempt, naming the robot and the variant."""
-    import envs
-    from envs.pybullet.env import PyBulletEnv
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.backends.pybullet.env import PyBulletEnv
     from mimicgen_pipe.cli import main
 
     monkeypatch.setattr(
-        envs, "make_env", lambda backend, task, robot, *_: PyBulletEnv(task, robot, (-3.0, 0.0))
+        backends, "make_env", lambda backend, task, robot, *_: PyBulletEnv(task, robot, (-3.0, 0.0))
     )
     monkeypatch.chdir(transfer_run)
     code = main(

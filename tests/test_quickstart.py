@@ -71,7 +71,7 @@ def test_the_quickstart_pipeline_gives_data_an_export_and_a_report(quickstart, t
     q = work / "quickstart"
     ran = json.loads((q / "metrics/generate_stack_cube_D0.json").read_text())
     committed = json.loads((REPO / "quickstart/metrics/generate_stack_cube_D0.json").read_text())
-    # on the CPU type that made the lock (mimicgen_pipe.arithmetic), the committed run bit for
+    # on the CPU type that made the lock (mimicgen_pipe.run.arithmetic), the committed run bit for
     # bit: the same run id (a digest of the parsed store's bytes) and every store and export
     # with the md5 the committed lock holds; elsewhere MKL gives other last bits, and the
     # committed DGR holds within seed noise
@@ -136,7 +136,7 @@ def check_a_typo_loses_nothing(work: Path, env: dict[str, str]) -> None:
     tracked metrics file is as the run left it."""
     q = work / "quickstart"
     params = q / "params.yaml"
-    before = {p: tree_digest(p) for p in (q / "data", q / "metrics", q / "code_deps")}
+    before = {p: tree_digest(p) for p in (q / "data", q / "metrics")}
     good = params.read_text()
     params.write_text(good.replace("action_noise:", "action_nois:"))
     res = subprocess.run(["dvc", "repro", "quickstart/dvc.yaml"], cwd=work, env=env,
@@ -203,7 +203,7 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     metrics = work / "quickstart/metrics/generate_stack_cube_D0.json"
     base = json.loads(metrics.read_text())
     out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", name, "-S", sets[0])
-    downstream = {"code_deps", "pose_noise", "generate@D0", "coverage@D0", "export@D0",
+    downstream = {"check", "pose_noise", "generate@D0", "coverage@D0", "export@D0",
                   "render@D0", "observe", "export_observed", "report"}  # fmt: skip
     assert ran_stages(out) == downstream
     assert "level: L2" in (work / q).read_text()
@@ -215,7 +215,7 @@ def check_experiments_and_compare(work: Path, env: dict[str, str]) -> None:
     out = run("dvc", "exp", "run", "quickstart/dvc.yaml", "-n", "bins4",
               "-S", f"{q}:coverage.bins=4")  # fmt: skip
     # from the workspace the first left: generate runs back to the committed store
-    assert {"code_deps", "coverage@D0", "report"} <= ran_stages(out) <= downstream
+    assert {"check", "coverage@D0", "report"} <= ran_stages(out) <= downstream
     shown = run("mimicgen-pipe", "compare", "--pipeline", "quickstart", "--width", "120")
     lines = shown.splitlines()
     head = lines[0].split()

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.executors import ray as ray_executor
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.run.executors import Executor
+from mimicgen_pipe.run.executors import ray as ray_executor
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.skipif(
@@ -99,7 +99,7 @@ def is_loopback(address: str) -> bool:
 # (Ray is up, a worker has run a block) and prints the listening sockets of its process tree
 LOCAL_RAY = """
 import json, os
-from mimicgen_pipe.executors import Executor, map_blocks
+from mimicgen_pipe.run.executors import Executor, map_blocks
 from tests.test_ray_security import listening_sockets, process_tree
 
 blocks = map_blocks(abs, [-1, -2, -3], Executor("ray", 1), int)
@@ -211,7 +211,7 @@ def test_a_cluster_without_a_token_here_is_refused_before_connecting(
 HEAD = """
 import sys
 import ray
-from mimicgen_pipe.executors.ray import _connect
+from mimicgen_pipe.run.executors.ray import _connect
 
 _connect(1, None)
 print(ray._private.worker._global_node.gcs_address, flush=True)

@@ -1,6 +1,6 @@
-"""Registries (mimicgen_pipe.registry): a set of choices is the files of a package, listed
+"""Registries (mimicgen_pipe.core.registry): a set of choices is the files of a package, listed
 without importing them and loaded by name; params validation reads its valid values from
-them. And the one reset-variant sampler (mimicgen_pipe.reset_variants) every back end draws
+them. And the one reset-variant sampler (mimicgen_pipe.core.reset_variants) every back end draws
 its scenes with."""
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.registry import choices, load
-from mimicgen_pipe.reset_variants import _distance, sample_planar_poses
-from mimicgen_pipe.taskspec import ObjectBounds, ResetVariant
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.registry import choices, load
+from mimicgen_pipe.core.reset_variants import _distance, sample_planar_poses
+from mimicgen_pipe.core.taskspec import ObjectBounds, ResetVariant
+from mimicgen_pipe.data.params import load_params
 
 PROBE = "registry_probe_choices"  # a package made for these tests, nowhere else
 
@@ -56,28 +56,28 @@ def test_load_of_an_unknown_name_is_one_error_naming_the_choices(probe_package, 
 
 
 def test_the_project_registries():
-    assert choices("mimicgen_pipe.selection") == (
+    assert choices("mimicgen_pipe.method.selection") == (
         "nearest_neighbor", "nearest_neighbor_robot_distance", "random"
     )  # fmt: skip
-    assert choices("mimicgen_pipe.executors") == ("local", "ray")
-    assert choices("mimicgen_pipe.exporters") == ("lerobot", "maniskill", "robomimic")
-    assert choices("envs") == ("maniskill", "pybullet")
-    assert "stack_cube" in choices("envs.maniskill.tasks")
-    assert "stack" in choices("envs.pybullet.tasks")
+    assert choices("mimicgen_pipe.run.executors") == ("local", "ray")
+    assert choices("mimicgen_pipe.formats.exporters") == ("lerobot", "maniskill", "robomimic")
+    assert choices("mimicgen_pipe.backends") == ("maniskill", "pybullet")
+    assert "stack_cube" in choices("mimicgen_pipe.tasks.maniskill")
+    assert "stack" in choices("mimicgen_pipe.tasks.pybullet")
 
 
 def test_an_unknown_executor_is_refused_when_it_is_made():
-    from mimicgen_pipe.executors import Executor
+    from mimicgen_pipe.run.executors import Executor
 
     with pytest.raises(
-        InputError, match=r"'dask': unknown in mimicgen_pipe.executors \(known: local, ray\)"
+        InputError, match=r"'dask': unknown in mimicgen_pipe.run.executors \(known: local, ray\)"
     ):
         Executor("dask")
 
 
 def test_params_take_an_exporter_dropped_into_the_package(tmp_path, monkeypatch):
     """An exporter is one file: params validation knows it once the file is there."""
-    import mimicgen_pipe.exporters as exporters
+    import mimicgen_pipe.formats.exporters as exporters
 
     folder = tmp_path / "exporters"
     shutil.copytree(Path(exporters.__file__).parent, folder)
@@ -96,7 +96,7 @@ def test_params_take_an_exporter_dropped_into_the_package(tmp_path, monkeypatch)
 
 def test_an_export_directory_is_what_the_exporters_write(tmp_path):
     """Every path a format writes, ManiSkill's joint-position copy included; nothing else."""
-    from mimicgen_pipe.exporters import export_dir_kind
+    from mimicgen_pipe.formats.exporters import export_dir_kind
 
     out = tmp_path / "export"
     (out / "lerobot" / "meta").mkdir(parents=True)
@@ -160,9 +160,9 @@ def test_a_pybullet_task_cannot_mark_a_variant_native():
     """PyBullet has no reset of its own: a task file that says so is refused when made."""
     import dataclasses
 
-    import envs
+    from mimicgen_pipe import backends
 
-    task = envs.load_task("pybullet", "stack")
+    task = backends.load_task("pybullet", "stack")
     d0 = dataclasses.replace(task.spec.reset_variants["D0"], native=True)
     spec = dataclasses.replace(task.spec, reset_variants={"D0": d0})
     with pytest.raises(ValueError, match="PyBullet has no reset of its own"):

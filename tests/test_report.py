@@ -11,11 +11,11 @@ from typing import Any
 
 import pytest
 
-import envs
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.metrics import Metrics, metrics_identity, read_metrics, write_metrics
-from mimicgen_pipe.outputs import claims
-from mimicgen_pipe.params import Params
+from mimicgen_pipe import backends
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data.metrics import Metrics, metrics_identity, read_metrics, write_metrics
+from mimicgen_pipe.data.outputs import claims
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report import (
     build_report,
     build_suite_report,
@@ -37,7 +37,7 @@ from tests.conftest import cli
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER = REPO / "reference/paper_results.yaml"
-STACK_CUBE = envs.task_spec("maniskill", "stack_cube")
+STACK_CUBE = backends.task_spec("maniskill", "stack_cube")
 
 
 def m(stage: str, task: str, variant: str | None = None, **fields: Any) -> Metrics:
@@ -132,7 +132,7 @@ def test_html_holds_the_same_tables_and_embeds_images():
 
 
 def test_build_report_and_the_stage_stay_short():
-    from stages import report
+    from mimicgen_pipe.stages import report
 
     for f in (build_report, build_suite_report, report.run):
         assert len(inspect.getsource(f).splitlines()) <= 60, f.__qualname__
@@ -392,7 +392,7 @@ def test_transfer_policies_sit_beside_p1_with_the_generating_arms_dgr():
     from mimicgen_pipe.report.summary import transfer_headline_numbers
     from mimicgen_pipe.report.transfer import transfer_policy_blocks
 
-    spec = envs.task_spec("pybullet", "stack_three")
+    spec = backends.task_spec("pybullet", "stack_three")
     pb = {"backend": "pybullet"}
     files = (
         gen("stack_three", "D0", 79.0, purpose="dgr", **pb),
@@ -438,7 +438,7 @@ def write_curves(plots: Path, *names: str, seeds: int = 1) -> None:
 
 
 def run_report(tmp_path: Path, metrics: Path, plots: Path, out: Path) -> None:
-    from stages import report
+    from mimicgen_pipe.stages import report
 
     (tmp_path / "params.yaml").write_text("task: stack_cube\ngenerate: {variants: [D0, D1]}\n")
     args = dict(params=str(tmp_path / "params.yaml"), metrics=str(metrics), ablations=None,
@@ -613,7 +613,7 @@ def suite_params(tasks: list[str]) -> Params:
 
 def test_the_suite_report_has_the_suite_sections_only():
     tasks = ["peg_insertion", "plug_charger"]
-    specs = [envs.task_spec("maniskill", t) for t in tasks]
+    specs = [backends.task_spec("maniskill", t) for t in tasks]
     fixed = {"steps": 40000, "purpose": "dgr"}
     files = (
         gen("peg_insertion", "D0", 52.0, **fixed),
@@ -696,7 +696,7 @@ def test_the_dataset_size_comparison_has_a_row_per_size_and_its_figure():
 def test_the_suite_table_states_the_action_noise_each_task_ran_with():
     """plug_charger caps the noise (its 0.5 mm clearance); the others run at the suite's."""
     tasks = ["pull_cube_tool", "plug_charger"]
-    specs = [envs.task_spec("maniskill", t) for t in tasks]
+    specs = [backends.task_spec("maniskill", t) for t in tasks]
     fixed = {"steps": 40000, "purpose": "dgr"}
     ms = MetricsSet((gen("pull_cube_tool", "D0", 64.0, **fixed),
                      gen("plug_charger", "D0", 60.0, **fixed)))  # fmt: skip
@@ -710,7 +710,7 @@ def test_the_suite_table_states_the_action_noise_each_task_ran_with():
 
 
 def test_suite_policy_table_sets_source_beside_generated_and_the_paper():
-    spec = envs.task_spec("maniskill", "place_sphere")  # stands for Pick Place
+    spec = backends.task_spec("maniskill", "place_sphere")  # stands for Pick Place
     protocol = {"episodes": 50, "every_epochs": 50, "checkpoints": 4}
 
     def ev(data: str, variant: str, best: float, last: float, **more: Any) -> Metrics:
@@ -740,7 +740,7 @@ def test_paper_geometry_tasks_meet_p1_minus_5_with_their_spread_over_seeds():
     D0 policies' mean ± std over seeds beside P.1, marked by whether it reaches P.1 − 5, and a
     row under it for each other profile's run that evaluated it; one seed shows no spread,
     and a task outside the list gets no row."""
-    specs = [envs.task_spec("maniskill", t) for t in ("stack_tower", "peg_insertion_square")]
+    specs = [backends.task_spec("maniskill", t) for t in ("stack_tower", "peg_insertion_square")]
     files = [
         gen("stack_tower", "D0", 70.0, purpose="dgr"),
         m("evaluate", "stack_tower", "D0", data="D0", success_rate_max=67.3,
@@ -784,7 +784,7 @@ def test_paper_geometry_tasks_meet_p1_minus_5_with_their_spread_over_seeds():
 def test_long_tasks_sit_beside_the_papers_kitchen_and_coffee_preparation():
     """A suite task of five or more subtasks gets a row in the long-task table, with its DGR
     per variant and its D0 policies, under the paper's long tasks; a short task gets none."""
-    specs = [envs.task_spec("maniskill", t) for t in ("drawer_cleanup", "place_sphere")]
+    specs = [backends.task_spec("maniskill", t) for t in ("drawer_cleanup", "place_sphere")]
     files = (
         gen("drawer_cleanup", "D0", 64.0, purpose="dgr"),
         gen("drawer_cleanup", "D2", 30.5, purpose="dgr"),
@@ -810,7 +810,7 @@ def test_two_arm_tasks_have_their_own_table_and_stay_out_of_the_long_tasks():
     failures charged to each arm, and its D0 policies; the long-task table (the paper's
     one-arm long tasks) leaves it out though it has six subtasks; the DGR table names the arm
     of each subtask's failures."""
-    specs = [envs.task_spec("maniskill", t) for t in ("two_robot_stack_cube", "place_sphere")]
+    specs = [backends.task_spec("maniskill", t) for t in ("two_robot_stack_cube", "place_sphere")]
     files = (
         gen("two_robot_stack_cube", "D0", 86.5, purpose="dgr", failures_carry_cubeA=10,
             failures_retreat=17, steps=66000),
@@ -918,7 +918,7 @@ def test_no_report_shows_a_wall_clock_time(tmp_path, monkeypatch):
     (tmp_path / "media" / "stack_cube_D0").mkdir(parents=True)
     (tmp_path / "media" / "stack_cube_D0" / "kept_0.mp4").write_bytes(b"")
     tasks = ["peg_insertion"]
-    specs = [envs.task_spec("maniskill", t) for t in tasks]
+    specs = [backends.task_spec("maniskill", t) for t in tasks]
 
     def reports(t: float) -> str:
         """The suite's DGR table, the transit report and the videos, with times ``t``."""
@@ -945,7 +945,7 @@ def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
     from mimicgen_pipe.report.profiles import profile_blocks, read_profile_runs
 
     assert read_profile_runs(tmp_path) == {}  # no runs: no folder, no section
-    specs = [envs.task_spec("maniskill", t) for t in ("peg_insertion", "plug_charger")]
+    specs = [backends.task_spec("maniskill", t) for t in ("peg_insertion", "plug_charger")]
     runs = {
         "cpu_3seeds": [
             m("train", "peg_insertion", data="D0", profile="cpu", seeds=3, gradient_steps=60000,
@@ -1005,7 +1005,7 @@ def test_the_outside_learner_sits_beside_ours_with_raw_and_normalized_observatio
     section."""
     from mimicgen_pipe.report.outside import outside_learner_blocks
 
-    specs = [envs.task_spec("maniskill", t) for t in ("stack_pyramid", "stack_tower")]
+    specs = [backends.task_spec("maniskill", t) for t in ("stack_pyramid", "stack_tower")]
     ours = m("evaluate", "stack_pyramid", "D0", data="D0", seeds=1, seed0_success_rate_max=30.0,
              seed0_success_rate_last=26.0, success_rate_max=30.0)  # fmt: skip
     tower = m("evaluate", "stack_tower", "D0", data="D0", seeds=3, success_rate_max=67.3,

@@ -1,4 +1,4 @@
-"""Generation blocks in a work directory (mimicgen_pipe.resume with runner's codec): plain
+"""Generation blocks in a work directory (mimicgen_pipe.run.resume with runner's codec): plain
 arrays that rebuild a block's results exactly, accepted only as the block they hold, a
 write that fails leaving nothing behind; and seeds and blocks made on demand, so that a
 run allowing millions of attempts holds none of them up front. No simulator."""
@@ -16,11 +16,11 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.executors import Executor, map_blocks
-from mimicgen_pipe.generation import Attempt
-from mimicgen_pipe.resume import WorkDir
-from mimicgen_pipe.runner import (
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.method.generation import Attempt
+from mimicgen_pipe.run.executors import Executor, map_blocks
+from mimicgen_pipe.run.resume import WorkDir
+from mimicgen_pipe.run.runner import (
     ATTEMPTS_PER_BLOCK,
     AttemptBlockCodec,
     AttemptSeeds,

@@ -15,19 +15,19 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import envs
-from envs._cameras import CameraRenderer
-from mimicgen_pipe import rollout_progress
-from mimicgen_pipe.evaluation import (
+from mimicgen_pipe import backends
+from mimicgen_pipe.core.cameras import CameraRenderer
+from mimicgen_pipe.data.metrics import evaluation_metrics
+from mimicgen_pipe.formats.external import PolicySpec, lerobot, policy_cameras, robomimic
+from mimicgen_pipe.learn.evaluation import (
     Checkpoints,
     EvalJob,
     evaluate_checkpoints,
     evaluate_policies,
     rollout_plan,
 )
-from mimicgen_pipe.executors import Executor
-from mimicgen_pipe.external import PolicySpec, lerobot, policy_cameras, robomimic
-from mimicgen_pipe.metrics import evaluation_metrics
+from mimicgen_pipe.run import rollout_progress
+from mimicgen_pipe.run.executors import Executor
 from tests.conftest import REPO, SMALL_PARAMS, cli
 from tests.test_external_policy import FakeEnv
 
@@ -131,7 +131,7 @@ def test_the_workers_render_only_the_cameras_the_policy_reads(monkeypatch):
     """A policy that reads the wrist camera at 8x6: the cameras it reads, the renderer each
     worker makes (evaluate_external's camera_renderer) and the pictures taken are that
     camera's alone, one a step, and the policy sees it at its size."""
-    from stages.evaluate_external import camera_renderer
+    from mimicgen_pipe.stages.evaluate_external import camera_renderer
 
     image = {"shape": [8, 6, 3], "dtype": "uint8"}
     hello = {"observations": {"eye_in_hand_image": image,
@@ -139,7 +139,7 @@ def test_the_workers_render_only_the_cameras_the_policy_reads(monkeypatch):
     spec = PolicySpec("robomimic", "/p", "python", ("eef_pos",), "")
     cameras, size = policy_cameras(spec, hello, ("agentview", "eye_in_hand"))
     assert (cameras, size) == (("eye_in_hand",), (8, 6))
-    monkeypatch.setattr(envs, "make_renderer", CountingRenderer)
+    monkeypatch.setattr(backends, "make_renderer", CountingRenderer)
     CountingRenderer.made, CountingRenderer.pictures, Recorder.seen = [], Counter(), []
     params = SimpleNamespace(backend="maniskill", task="stack_cube")
     make_cameras = camera_renderer(params, "panda", cameras, size)
@@ -173,7 +173,7 @@ def test_the_epoch_recorded_is_the_checkpoint_s_own(tmp_path, capsys):
     elsewhere.mkdir()
     assert lerobot.checkpoint_epoch(elsewhere) is None
     # evaluate_external records it so
-    from stages.evaluate_external import checkpoint_epoch
+    from mimicgen_pipe.stages.evaluate_external import checkpoint_epoch
 
     epoch = checkpoint_epoch("robomimic", Path("models/model_epoch_2.pth"), "e")
     assert epoch == (2, "epoch")
@@ -210,7 +210,7 @@ def test_evaluate_records_the_best_checkpoint_s_epoch():
 
 def test_evaluate_without_checkpoints_names_the_train_stage(tmp_path):
     """Before training: one line naming the train command; in the pipeline, its stage."""
-    from stages.evaluate import checkpoints_made_by
+    from mimicgen_pipe.stages.evaluate import checkpoints_made_by
 
     (tmp_path / "params.yaml").write_text(SMALL_PARAMS)
     res = cli("evaluate", "--data", "D1", "--variant", "D1", cwd=tmp_path, check=False)

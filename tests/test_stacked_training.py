@@ -1,4 +1,4 @@
-"""Several BC-RNNs trained as one stacked network (mimicgen_pipe.stacked_training): each
+"""Several BC-RNNs trained as one stacked network (mimicgen_pipe.learn.stacked_training): each
 slice computes what its own BCRNN computes, and trains as train_policy trains it."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
-from mimicgen_pipe.stacked_training import StackedBCRNN, stacked_nll, train_stacked
-from mimicgen_pipe.training import (
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.learn.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
+from mimicgen_pipe.learn.stacked_training import StackedBCRNN, stacked_nll, train_stacked
+from mimicgen_pipe.learn.training import (
     SequenceData,
     TrainConfig,
     TrainingRun,
@@ -149,7 +149,7 @@ def test_cuda_graph_training_matches_eager_training_on_the_gpu():
 
 
 def test_the_train_stage_gets_a_stacks_results_as_it_gets_side_by_side_runs():
-    from mimicgen_pipe.training import stacked_trainings
+    from mimicgen_pipe.learn.training import stacked_trainings
 
     runs = toy_runs(epochs=10)
     results = list(stacked_trainings(runs))
@@ -168,7 +168,7 @@ def test_paper_profile_script_packs_trains_returns_and_unpacks_loadable_checkpoi
     import importlib.util
     import json
 
-    from mimicgen_pipe.training import load_checkpoint
+    from mimicgen_pipe.learn.training import load_checkpoint
 
     spec = importlib.util.spec_from_file_location("paper_profile", "scripts/paper_profile.py")
     pp = importlib.util.module_from_spec(spec)

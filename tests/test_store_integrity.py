@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import yaml
 
-from mimicgen_pipe import poses
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.store import read_store, write_store
+from mimicgen_pipe.core import poses
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.data.store import read_store, write_store
 from tests.conftest import SMALL_PARAMS, cli
 
 
@@ -145,7 +145,7 @@ def edit_metadata(store: Path, array: str, edit) -> Path:
 def test_an_array_relabelled_with_another_dtype_is_refused_before_reading(
     tmp_path, array, dtype, expected
 ):
-    from mimicgen_pipe.store import open_store
+    from mimicgen_pipe.data.store import open_store
 
     store = small_store(tmp_path / "s.zarr")
     meta = edit_metadata(store, array, lambda d: d.update(data_type=dtype))
@@ -161,7 +161,7 @@ def test_an_array_relabelled_with_another_dtype_is_refused_before_reading(
      "data/actions", lambda d: d.pop("shape")), lambda m: m.write_text("[1]")],
 )  # fmt: skip
 def test_a_damaged_zarr_json_is_one_error_naming_the_file(tmp_path, damage):
-    from mimicgen_pipe.store import open_store
+    from mimicgen_pipe.data.store import open_store
 
     store = small_store(tmp_path / "s.zarr")
     meta = store / "data/actions/zarr.json"
@@ -357,7 +357,7 @@ def test_guarantee_mode_at_its_cap_is_one_line_and_leaves_nothing(work):
 def test_arrays_come_in_name_order_whatever_order_zarr_lists_them(tmp_path, monkeypatch):
     import zarr
 
-    from mimicgen_pipe.store import open_store
+    from mimicgen_pipe.data.store import open_store
 
     store = small_store(tmp_path / "s.zarr")
     listed = zarr.Group.members

@@ -12,7 +12,7 @@ import json
 import pytest
 import yaml
 
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe.data.store import read_store
 from tests.conftest import REPO, cli, replay_first_episodes
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
@@ -23,7 +23,7 @@ SUITE = yaml.safe_load((REPO / "suite/params.yaml").read_text())["suite"]
 
 @pytest.mark.parametrize("task", SUITE["tasks"])
 def test_source_parse_generate_replay(task, tmp_path):
-    from envs import make_env
+    from mimicgen_pipe.backends import make_env
 
     (tmp_path / "params.yaml").write_text(
         f"task: {task}\nsource: {{num_demos: 2, seed: 0}}\ngenerate: {{workers: 1, seed: 1}}\n"
@@ -58,7 +58,7 @@ def test_place_sphere_planner_plans_the_same_demo_in_every_process(tmp_path):
         out = tmp_path / str(k)
         out.mkdir()
         code = (
-            "from envs.maniskill.source import _plan_child; "
+            "from mimicgen_pipe.backends.maniskill.source import _plan_child; "
             f"print(_plan_child('place_sphere', 'panda', '1', '18', '{out}', '1'))"
         )
         res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)

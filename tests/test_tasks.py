@@ -14,18 +14,18 @@ import re
 import numpy as np
 import pytest
 
-import envs
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.observations import observation_keys
-from mimicgen_pipe.registry import choices
+from mimicgen_pipe import backends
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.observations import observation_keys
+from mimicgen_pipe.core.registry import choices
 
-TASKS = [(b, t) for b in choices("envs") for t in envs.task_names(b)]
+TASKS = [(b, t) for b in choices("mimicgen_pipe.backends") for t in backends.task_names(b)]
 IDS = [f"{b}-{t}" for b, t in TASKS]
 
 
 @pytest.mark.parametrize(("backend", "task"), TASKS, ids=IDS)
 def test_spec_is_consistent(backend, task):
-    spec = envs.task_spec(backend, task)
+    spec = backends.task_spec(backend, task)
     assert spec.name == task and spec.paper_task, "a task says which paper task it stands for"
     assert "D0" in spec.variants
     assert set(spec.default_obs_keys) <= set(spec.provided_obs_keys)
@@ -60,8 +60,8 @@ def test_task_docstring_has_maniskills_headings_and_the_specs_subtasks(backend, 
     bullet per reset variant under Randomizations, and one per subtask, in the spec's order,
     opening with its name and naming its reference object, its term signal (or that the demo
     ends it) and, with two arms, its arm."""
-    spec = envs.task_spec(backend, task)
-    module = importlib.import_module(f"envs.{backend}.tasks.{task}")
+    spec = backends.task_spec(backend, task)
+    module = importlib.import_module(f"mimicgen_pipe.tasks.{backend}.{task}")
     sections = _sections(inspect.cleandoc(module.__doc__ or ""))
     assert tuple(sections) == HEADINGS, module.__file__
     variants = {b.split(maxsplit=1)[0].rstrip(":") for b in _bullets(sections["Randomizations"])}
@@ -82,14 +82,14 @@ def test_lookups_name_the_valid_choices():
     with pytest.raises(
         InputError, match=r"backend 'mujoco': unknown \(known: maniskill, pybullet\)"
     ):
-        envs.task_spec("mujoco", "stack")
+        backends.task_spec("mujoco", "stack")
     with pytest.raises(InputError, match=r"task 'stack_sphere': unknown .*known: .*stack_cube"):
-        envs.task_spec("maniskill", "stack_sphere")
-    spec = envs.task_spec("maniskill", "stack_cube")
+        backends.task_spec("maniskill", "stack_sphere")
+    spec = backends.task_spec("maniskill", "stack_cube")
     with pytest.raises(InputError, match=r"variant 'D7': unknown for task stack_cube \(known: D0"):
-        envs.check_variant(spec, "D7")
+        backends.check_variant(spec, "D7")
     with pytest.raises(InputError, match=r"'peg_pos' not an observation of task stack_cube"):
-        envs.check_obs_keys(spec, ["eef_pos", "peg_pos"], "train.obs_keys")
+        backends.check_obs_keys(spec, ["eef_pos", "peg_pos"], "train.obs_keys")
 
 
 def _yaw(pose: np.ndarray) -> float:
@@ -99,7 +99,7 @@ def _yaw(pose: np.ndarray) -> float:
 @pytest.mark.sim
 @pytest.mark.parametrize(("backend", "task"), TASKS, ids=IDS)
 def test_env_provides_the_spec_and_samples_inside_its_variants(backend, task):
-    env = envs.make_env(backend, task)
+    env = backends.make_env(backend, task)
     try:
         spec = env.spec
         assert set(spec.signals) <= set(env.subtask_signals()), "every term signal is provided"
@@ -132,10 +132,10 @@ def test_a_task_frame_carries_the_source_scenes_hole_into_another_scene():
     source demos' scene its pose is the actor's, bit for bit; in O1's scene, where ManiSkill
     put the hole 2-4 cm elsewhere in the box, the reported pose puts the source scene's hole
     offset exactly onto O1's hole, so an insertion carried in the box's frame follows it."""
-    from envs.maniskill.tasks.peg_insertion import hole_frame
-    from mimicgen_pipe.poses import pose_from_pq
+    from mimicgen_pipe.core.poses import pose_from_pq
+    from mimicgen_pipe.tasks.maniskill.peg_insertion import hole_frame
 
-    env = envs.make_env("maniskill", "peg_insertion")
+    env = backends.make_env("maniskill", "peg_insertion")
     try:
         u = env.unwrapped
         source_hole = hole_frame(u)
@@ -162,7 +162,7 @@ def test_a_restored_state_brings_back_what_the_task_derived_at_reset():
     """PlugCharger keeps its goal pose outside the simulator's state (ManiSkill derives it
     from the receptacle at reset); a restored state gets the goal of its own scene, not the
     last reset's, so a stored episode is judged against the right goal."""
-    env = envs.make_env("maniskill", "plug_charger")
+    env = backends.make_env("maniskill", "plug_charger")
     try:
         env.reset(seed=1, variant="D0")
         state, goal = env.get_state(), env.unwrapped.goal_pose.raw_pose.numpy().copy()
@@ -177,9 +177,9 @@ def test_a_restored_state_brings_back_what_the_task_derived_at_reset():
 def test_a_task_caps_the_action_noise_its_tolerances_take():
     import dataclasses
 
-    plug = envs.task_spec("maniskill", "plug_charger")
+    plug = backends.task_spec("maniskill", "plug_charger")
     assert plug.action_noise(0.025) == 0.0
-    assert envs.task_spec("maniskill", "peg_insertion").action_noise(0.025) == 0.025
+    assert backends.task_spec("maniskill", "peg_insertion").action_noise(0.025) == 0.025
     capped = dataclasses.replace(plug, max_action_noise=0.01)
     assert capped.action_noise(0.025) == 0.01 and capped.action_noise(0.005) == 0.005
     with pytest.raises(ValueError, match="max_action_noise"):
@@ -192,11 +192,11 @@ def test_a_task_with_geometry_of_its_own_has_its_own_env_and_leaves_its_base_as_
     (ManiSkillTask.env_attributes) on an env class of its own; peg_insertion, built in the
     same process, keeps ManiSkill's 3 mm, and the square task's demonstrator records in the
     square task's env."""
-    from envs.maniskill.source import demo_env_id
-    from envs.maniskill.tasks.peg_insertion_square import SQUARE_CLEARANCE
+    from mimicgen_pipe.backends.maniskill.source import demo_env_id
+    from mimicgen_pipe.tasks.maniskill.peg_insertion_square import SQUARE_CLEARANCE
 
     square, stock = (
-        envs.make_env("maniskill", t) for t in ("peg_insertion_square", "peg_insertion")
+        backends.make_env("maniskill", t) for t in ("peg_insertion_square", "peg_insertion")
     )
     try:
         clearance = {
@@ -218,7 +218,7 @@ def test_a_task_with_geometry_of_its_own_has_its_own_env_and_leaves_its_base_as_
 def test_stack_tower_counts_a_cube_on_another_only_at_one_cube_height():
     """stack_tower's "on" test (StackCube-v1's): centres within the half diagonal + 5 mm in
     xy and 4 cm ± 5 mm apart in z; A beside B (the pyramid's first step) is not on it."""
-    from envs.maniskill.tasks.stack_tower import HALF, _signals, on
+    from mimicgen_pipe.tasks.maniskill.stack_tower import HALF, _signals, on
 
     b = np.array([0.05, -0.02, HALF], np.float32)
     up = np.array([0.0, 0.0, 2 * HALF], np.float32)
@@ -240,12 +240,12 @@ def test_stack_tower_reports_its_own_success_in_the_pyramids_scene():
     which stack_pyramid keeps; as a tower they pass it."""
     from mani_skill.utils.structs.pose import Pose
 
-    from envs.maniskill.source import demo_env_id
-    from envs.maniskill.tasks.stack_tower import HALF
+    from mimicgen_pipe.backends.maniskill.source import demo_env_id
+    from mimicgen_pipe.tasks.maniskill.stack_tower import HALF
 
     up, aside = np.array([0, 0, 2 * HALF], np.float32), np.array([2 * HALF + 0.003, 0, 0])
     arrangements = {"tower": (up, 2 * up), "pyramid": (aside, aside / 2 + up)}
-    tower, pyramid = (envs.make_env("maniskill", t) for t in ("stack_tower", "stack_pyramid"))
+    tower, pyramid = (backends.make_env("maniskill", t) for t in ("stack_tower", "stack_pyramid"))
     try:
         assert tower.task.env_id == "MimicGenstack_tower-StackPyramid-v1"
         assert pyramid.task.env_id == "MimicGenStackPyramid-v1"

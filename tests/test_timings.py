@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe.metrics import (
+from mimicgen_pipe.data.metrics import (
     IDENTITY_FIELDS,
     generation_metrics,
     is_timing,
@@ -21,7 +21,7 @@ from mimicgen_pipe.metrics import (
     write_timings,
 )
 
-# every wall-clock field a stage writes, by stage (grep of stages/, mimicgen_pipe/, scripts/)
+# every wall-clock field a stage writes, by stage (grep of mimicgen_pipe/, scripts/)
 TIMING_KEYS = {
     "generate": ["seconds_per_attempt_mean", "seconds_per_attempt_median", "wall_seconds"],
     "train": ["wall_seconds", "seconds_per_1000_steps", "epoch_seconds"],  # and robomimic's

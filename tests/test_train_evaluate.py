@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from mimicgen_pipe.evaluation import evaluation_seed, rollout
-from mimicgen_pipe.policy import BCRNN, PolicyConfig
-from mimicgen_pipe.store import read_store, write_store
-from mimicgen_pipe.training import save_checkpoint
+from mimicgen_pipe.data.store import read_store, write_store
+from mimicgen_pipe.learn.evaluation import evaluation_seed, rollout
+from mimicgen_pipe.learn.policy import BCRNN, PolicyConfig
+from mimicgen_pipe.learn.training import save_checkpoint
 from tests.conftest import cli
 
 pytestmark = pytest.mark.sim
@@ -31,7 +31,7 @@ evaluate: {episodes: 2, every_epochs: 1, workers: 1}
 
 @pytest.fixture(scope="module")
 def env():
-    from envs import make_env
+    from mimicgen_pipe.backends import make_env
 
     e = make_env("maniskill", "stack_cube")
     yield e

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimicgen_pipe.metrics import generation_metrics
-from mimicgen_pipe.params import Params, data_params, load_params
-from mimicgen_pipe.store import read_store
-from mimicgen_pipe.transit import PlannerSettings, approach_start, densify, joint_path
+from mimicgen_pipe.core.transit import PlannerSettings, approach_start, densify, joint_path
+from mimicgen_pipe.data.metrics import generation_metrics
+from mimicgen_pipe.data.params import Params, data_params, load_params
+from mimicgen_pipe.data.store import read_store
 from tests.conftest import cli
 
 # ---- the search (no simulator) ----
@@ -156,9 +156,9 @@ def wall_contacts(env) -> list[str]:
 
 @pytest.mark.sim
 def test_a_planned_transit_goes_over_the_wall_the_straight_line_hits(wall_task):
-    from envs import make_env
-    from mimicgen_pipe.generation import GenerationConfig, replay_actions, run_attempt
-    from mimicgen_pipe.runner import attempt_seed, source_demos
+    from mimicgen_pipe.backends import make_env
+    from mimicgen_pipe.method.generation import GenerationConfig, replay_actions, run_attempt
+    from mimicgen_pipe.run.runner import attempt_seed, source_demos
 
     env = make_env("maniskill", "stack_cube_wall")
     store = read_store(wall_task / "data/parsed/stack_cube_wall.zarr")

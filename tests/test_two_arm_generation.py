@@ -1,4 +1,4 @@
-"""Generation for a task with two arms (mimicgen_pipe.generation.attempt_actions), on a toy
+"""Generation for a task with two arms (mimicgen_pipe.method.generation.attempt_actions), on a toy
 two-arm env without a simulator (tests/two_arm_toy.py): each arm runs its own subtasks, a
 sequential constraint holds in every generated episode, coordinated subtasks start and end
 together and keep both end effectors' poses relative to their shared object as in the one
@@ -11,10 +11,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mimicgen_pipe import poses
-from mimicgen_pipe.generation import GenerationConfig, replay_actions, run_attempt
-from mimicgen_pipe.segments import check_subtask_ends
-from mimicgen_pipe.store import read_store
+from mimicgen_pipe.core import poses
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.method.generation import GenerationConfig, replay_actions, run_attempt
+from mimicgen_pipe.method.segments import check_subtask_ends
 from tests import two_arm_toy as toy
 from tests.conftest import cli
 
@@ -158,13 +158,13 @@ def two_robot(tmp_path_factory):
 @pytest.mark.sim
 def test_a_rollout_observes_both_arms_as_the_generator_recorded_them(two_robot):
     """The observation a policy is shown in a rollout is the stored one, key for key."""
-    import envs
-    from mimicgen_pipe.evaluation import policy_observation
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.learn.evaluation import policy_observation
 
-    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
+    spec = backends.task_spec("maniskill", "two_robot_stack_cube")
     kept = read_store(two_robot / "data/generated/two_robot_stack_cube_D0.zarr")
     ep = kept.episode(0)
-    env = envs.make_env("maniskill", "two_robot_stack_cube")
+    env = backends.make_env("maniskill", "two_robot_stack_cube")
     try:
         env.set_state(kept.episodes["initial_state"][0])
         obs = policy_observation(env, spec.objects, spec.arms)
@@ -183,7 +183,7 @@ def test_a_policy_trains_on_two_arm_data_and_is_evaluated(two_robot):
     checkpoint out in the two-arm env and writes its success rates."""
     import json
 
-    from mimicgen_pipe.training import load_checkpoint
+    from mimicgen_pipe.learn.training import load_checkpoint
 
     cli("train", "--data", "D0", "--num-demos", "4", cwd=two_robot)
     ckpts = sorted((two_robot / "data/policies/two_robot_stack_cube_D0").rglob("*.pt"))
@@ -198,9 +198,9 @@ def test_a_policy_trains_on_two_arm_data_and_is_evaluated(two_robot):
 
 @pytest.mark.sim
 def test_two_robot_stack_cube_generates_with_its_constraint(two_robot):
-    import envs
+    from mimicgen_pipe import backends
 
-    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
+    spec = backends.task_spec("maniskill", "two_robot_stack_cube")
     index = {(s.arm, s.name): i for i, s in enumerate(spec.subtasks)}
     parsed = read_store(two_robot / "data/parsed/two_robot_stack_cube.zarr")
     assert parsed.episodes["subtask_term_index"].shape == (3, 4)  # two per arm
@@ -214,7 +214,7 @@ def test_two_robot_stack_cube_generates_with_its_constraint(two_robot):
             stack = np.flatnonzero(ep["subtask/left"] == index[("left", "stack_cubeA")])
             if len(stack):  # the left arm stacks only after the right arm placed cube B
                 assert stack[0] > placed[-1]
-    env = envs.make_env("maniskill", "two_robot_stack_cube")
+    env = backends.make_env("maniskill", "two_robot_stack_cube")
     try:
         for e in range(2):
             ep = kept.episode(e)
@@ -245,11 +245,11 @@ def test_two_arm_exports_name_each_arms_actions_and_subtasks(two_robot, tmp_path
     import h5py
     import pyarrow.parquet as pq
 
-    import envs
-    from mimicgen_pipe import exporters
-    from mimicgen_pipe.errors import InputError
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.core.errors import InputError
+    from mimicgen_pipe.formats import exporters
 
-    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
+    spec = backends.task_spec("maniskill", "two_robot_stack_cube")
     store = exporters.read(two_robot / "data/generated/two_robot_stack_cube_D0.zarr", spec.name)
     info = exporters.export_info(store.attrs, spec, spec.default_obs_keys, 0.25)
     names = info.action_names
@@ -289,11 +289,11 @@ def test_two_arm_exports_name_each_arms_actions_and_subtasks(two_robot, tmp_path
 def test_two_arm_frames_are_captioned_with_both_arms_subtasks(two_robot, monkeypatch):
     """A two-arm store's episode gives a frame per step, each captioned with what each arm
     does (a blank picture stands in for the renderer)."""
-    import envs
-    from mimicgen_pipe import video
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.media import video
 
     kept = read_store(two_robot / "data/generated/two_robot_stack_cube_D0.zarr")
-    spec = envs.task_spec("maniskill", "two_robot_stack_cube")
+    spec = backends.task_spec("maniskill", "two_robot_stack_cube")
     arms = tuple(dict.fromkeys(s.arm for s in spec.subtasks))
     captions: list = []
     monkeypatch.setattr(video, "caption", lambda f, lines, ok=None: captions.append(lines) or f)
@@ -332,9 +332,9 @@ def test_two_robot_lift_bar_lifts_the_bar_with_both_arms_as_one(lift_bar):
     """The coordinated lifts start at one step in every episode and end with the two hands'
     targets placed relative to each other as in the one source demo both follow; kept
     episodes replay to success."""
-    import envs
+    from mimicgen_pipe import backends
 
-    spec = envs.task_spec("maniskill", "two_robot_lift_bar")
+    spec = backends.task_spec("maniskill", "two_robot_lift_bar")
     lift = {a: spec.subtasks.index(spec.arm_subtasks(a)[-1]) for a in ("left", "right")}
     parsed = read_store(lift_bar / "data/parsed/two_robot_lift_bar.zarr")
     kept = read_store(lift_bar / "data/generated/two_robot_lift_bar_D1.zarr")
@@ -352,7 +352,7 @@ def test_two_robot_lift_bar_lifts_the_bar_with_both_arms_as_one(lift_bar):
         end = kept.episode_ends[e] - 1
         got = poses.pose_inv(targets["left"][end]) @ targets["right"][end]
         np.testing.assert_allclose(got, want, atol=1e-5)
-    env = envs.make_env("maniskill", "two_robot_lift_bar")
+    env = backends.make_env("maniskill", "two_robot_lift_bar")
     try:
         _, ok = replay_actions(
             env,

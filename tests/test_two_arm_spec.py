@@ -1,4 +1,4 @@
-"""Task specs with two arms (mimicgen_pipe.taskspec): each arm's own ordered subtasks, the
+"""Task specs with two arms (mimicgen_pipe.core.taskspec): each arm's own ordered subtasks, the
 constraints between two arms' subtasks (sequential, coordinated), and every inconsistency
 refused when the task file builds its spec; one-arm tasks are the one-arm case."""
 
@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-import envs
-from mimicgen_pipe.taskspec import (
+from mimicgen_pipe import backends
+from mimicgen_pipe.core.taskspec import (
     ARM,
     ObjectBounds,
     ResetVariant,
@@ -63,8 +63,8 @@ def test_each_arm_has_its_own_ordered_subtasks():
     ],
 )
 def test_every_other_task_of_the_package_is_the_one_arm_case(backend, several):
-    for name in envs.task_names(backend):
-        spec = envs.task_spec(backend, name)
+    for name in backends.task_names(backend):
+        spec = backends.task_spec(backend, name)
         if name in several:
             assert len(spec.arms) == 2 and spec.constraints
             continue
@@ -132,5 +132,5 @@ def test_each_arms_last_subtask_ends_with_the_demo():
 
 def test_planned_transit_for_two_arms_is_refused():
     with pytest.raises(Exception, match="the task has 2 arms and the motion planner plans for one"):
-        envs.check_transit("maniskill", "panda", "planned", 2)
-    envs.check_transit("maniskill", "panda", "linear", 2)  # linear transit: any number of arms
+        backends.check_transit("maniskill", "panda", "planned", 2)
+    backends.check_transit("maniskill", "panda", "linear", 2)  # linear transit: any number of arms

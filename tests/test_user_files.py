@@ -14,12 +14,12 @@ import h5py
 import numpy as np
 import pytest
 
-from envs.maniskill.source import read_trajectory_file
-from mimicgen_pipe import robomimic_source
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.segments import read_boundaries
-from mimicgen_pipe.taskspec import SubtaskSpec
-from mimicgen_pipe.yamlfile import load_yaml
+from mimicgen_pipe.backends.maniskill.source import read_trajectory_file
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.taskspec import SubtaskSpec
+from mimicgen_pipe.core.yamlfile import load_yaml
+from mimicgen_pipe.method.segments import read_boundaries
+from mimicgen_pipe.sources import robomimic_source
 
 
 def one_line(exc: pytest.ExceptionInfo) -> str:
@@ -205,14 +205,14 @@ def test_a_broken_robomimic_file_is_one_error(tmp_path, damage, expected):
 
 
 def run_source(tmp_path: Path, monkeypatch, params: str) -> None:
-    """stages.source.run with a simulator that fails the test if it is started."""
-    import envs
-    from stages import source
+    """mimicgen_pipe.stages.source.run with a simulator that fails the test if it is started."""
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.stages import source
 
     def no_simulator(*args, **kwargs):
         raise AssertionError("the simulator was started")
 
-    monkeypatch.setattr(envs, "make_env", no_simulator)
+    monkeypatch.setattr(backends, "make_env", no_simulator)
     (tmp_path / "params.yaml").write_text(params)
     parser = argparse.ArgumentParser()
     source.add_arguments(parser)
@@ -274,10 +274,10 @@ COMMITTED = REPO / "quickstart/metrics/source_stack_cube.json"
 
 
 def run_source_recorded(tmp_path: Path, monkeypatch, section: str, *argv: str) -> bytes:
-    """stages.source.run (params' source: ``section``) with its recording replaced by the
-    committed run's numbers (no simulator, no store written): the metrics file's bytes."""
-    import envs
-    from stages import source
+    """mimicgen_pipe.stages.source.run (params' source: ``section``) with its recording replaced by
+    the committed run's numbers (no simulator, no store written): the metrics file's bytes."""
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.stages import source
 
     numbers = json.loads(COMMITTED.read_text())
     recording = argparse.Namespace(
@@ -286,9 +286,9 @@ def run_source_recorded(tmp_path: Path, monkeypatch, section: str, *argv: str) -
             "demos", "dropped_planner", "dropped_replay", "mean_length", "demonstrator_seeds")},
     )  # fmt: skip
     env = argparse.Namespace(control_mode="pd_ee_delta_pose", control_freq=20)
-    monkeypatch.setattr(envs, "make_env", lambda *args: env)
+    monkeypatch.setattr(backends, "make_env", lambda *args: env)
     monkeypatch.setattr(source, "record_source_demos", lambda *args: recording)
-    monkeypatch.setattr("mimicgen_pipe.store.write_store", lambda path, *args: path.mkdir())
+    monkeypatch.setattr("mimicgen_pipe.data.store.write_store", lambda path, *args: path.mkdir())
     (tmp_path / "params.yaml").write_text(f"task: stack_cube\nsource: {section}\n")
     parser = argparse.ArgumentParser()
     source.add_arguments(parser)
@@ -332,7 +332,7 @@ def test_the_source_stage_names_the_file_it_read(tmp_path, monkeypatch, capsys, 
 def test_the_source_stage_refuses_a_params_file_its_pipeline_does_not_track(tmp_path, monkeypatch):
     """The check stage's rule (source_inputs.check_place), also where the source stage runs
     alone (dvc repro -s source); --from-file, a hand run's choice, may name any file."""
-    from mimicgen_pipe import pipelines
+    from mimicgen_pipe.data import pipelines
 
     monkeypatch.setattr(pipelines, "_current", None)  # restored: stage_params sets it
     (tmp_path / ".dvc").mkdir()

@@ -9,20 +9,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from mimicgen_pipe.controller import (
+from mimicgen_pipe.core.controller import (
     DeltaPoseController,
     actions_to_target_poses,
     target_poses_to_actions,
 )
-from mimicgen_pipe.generation import SourceDemos, replay_actions
-from mimicgen_pipe.segments import subtask_ends
-from mimicgen_pipe.taskspec import (
+from mimicgen_pipe.core.taskspec import (
     ObjectBounds,
     ResetVariant,
     SubtaskConstraint,
     SubtaskSpec,
     TaskSpec,
 )
+from mimicgen_pipe.method.generation import SourceDemos, replay_actions
+from mimicgen_pipe.method.segments import subtask_ends
 
 ARMS = ("right", "left")
 OBJECTS = ("tray", "cube")

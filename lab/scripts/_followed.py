@@ -1,5 +1,5 @@
 """Follows the scene through the evaluate stage's own rollout
-(:func:`mimicgen_pipe.evaluation.rollout`), step by step: the scripts here hand that
+(:func:`mimicgen_pipe.learn.evaluation.rollout`), step by step: the scripts here hand that
 rollout a :class:`Followed` env instead of copying its loop, so their rollouts are the
 stage's."""
 

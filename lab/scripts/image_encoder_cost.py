@@ -1,4 +1,4 @@
-"""Seconds per gradient step of the image BC-RNN (mimicgen_pipe.policy, two 84x84 cameras,
+"""Seconds per gradient step of the image BC-RNN (mimicgen_pipe.learn.policy, two 84x84 cameras,
 the robot's 9 low-dim values, seq_len 10) for a few encoder widths, LSTM sizes and batch
 sizes, on random images and actions: forward, backward and Adam, the pixel shift included.
 Prints one line per size; the median of steps 3-8.
@@ -9,7 +9,7 @@ Prints one line per size; the median of steps 3-8.
 from __future__ import annotations
 
 if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
-    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
+    from mimicgen_pipe.run import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 
@@ -19,8 +19,8 @@ import time
 import numpy as np
 import torch
 
-from mimicgen_pipe.policy import BCRNN, PolicyConfig, nll_loss
-from mimicgen_pipe.training_setup import shift_images
+from mimicgen_pipe.learn.policy import BCRNN, PolicyConfig, nll_loss
+from mimicgen_pipe.learn.training_setup import shift_images
 
 SIZES = [  # (channels, LSTM hidden, batch)
     (32, 400, 16),

@@ -18,7 +18,7 @@ of success, other.
 from __future__ import annotations
 
 if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
-    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
+    from mimicgen_pipe.run import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 
@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 from _followed import Followed
 
-import envs
-from envs.maniskill.tasks import peg_insertion
-from mimicgen_pipe.evaluation import evaluation_seed, rollout
-from mimicgen_pipe.generation import Env
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.policy import COMPONENTS
-from mimicgen_pipe.training import load_rollout_policy
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.learn.evaluation import evaluation_seed, rollout
+from mimicgen_pipe.learn.policy import COMPONENTS
+from mimicgen_pipe.learn.training import load_rollout_policy
+from mimicgen_pipe.method.generation import Env
+from mimicgen_pipe.tasks.maniskill import peg_insertion
 
 TASK = "peg_insertion"
 
@@ -70,10 +70,10 @@ def main() -> None:
     args = p.parse_args()
     if args.out is not None and args.out.exists():  # before any work; nothing is replaced
         p.error(f"--out {args.out}: already exists; remove it or name another file")
-    spec = envs.task_spec("maniskill", TASK)
-    envs.check_variant(spec, args.variant)
+    spec = backends.task_spec("maniskill", TASK)
+    backends.check_variant(spec, args.variant)
     policy = load_rollout_policy(args.policy, args.component)
-    env = envs.make_env("maniskill", TASK)
+    env = backends.make_env("maniskill", TASK)
     face = -float(env.unwrapped.peg_half_sizes[0, 0])
     radius = float(env.unwrapped.box_hole_radii[0])
     seed0 = load_params().evaluate.seed

@@ -16,7 +16,7 @@ succeeded, and the new scenes by distance.
 from __future__ import annotations
 
 if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
-    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
+    from mimicgen_pipe.run import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 
@@ -26,12 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-import envs
-from mimicgen_pipe import layout
-from mimicgen_pipe.evaluation import evaluation_seed, rollout
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.store import read_store
-from mimicgen_pipe.training import load_rollout_policy
+from mimicgen_pipe import backends
+from mimicgen_pipe.data import layout
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.learn.evaluation import evaluation_seed, rollout
+from mimicgen_pipe.learn.training import load_rollout_policy
 
 BINS = (0.0, 0.1, 0.2, np.inf)  # [m] of distance to the nearest source demo
 
@@ -48,13 +48,13 @@ def main() -> None:
     args = p.parse_args()
     if args.out is not None and args.out.exists():  # before any work; nothing is replaced
         p.error(f"--out {args.out}: already exists; remove it or name another file")
-    spec = envs.task_spec(args.backend, args.task)
-    envs.check_variant(spec, args.variant)
+    spec = backends.task_spec(args.backend, args.task)
+    backends.check_variant(spec, args.variant)
     source = read_store(
         args.source or layout.source_store(args.task), task=args.task, kind="source"
     )
     policy = load_rollout_policy(args.policy)
-    env = envs.make_env(args.backend, args.task)
+    env = backends.make_env(args.backend, args.task)
     # (N, n_objects, 2): each source demo's objects' initial x, y (stored as x, y, z, wxyz)
     initial = np.asarray(source.episodes["initial_object_poses"])[:, :, :2]
     signals = [s.term_signal for s in spec.subtasks[:-1]]

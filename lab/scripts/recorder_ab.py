@@ -1,8 +1,8 @@
 """Two versions of the generator's recording, interleaved block by block in one process on
 the same StackCube attempts: seconds per attempt and the generator's overhead of each.
 
-    git worktree add /tmp/before <rev>
-    .venv/bin/python lab/scripts/recorder_ab.py /tmp/before/mimicgen_pipe/generation.py \
+    git worktree add /tmp/before <rev>   # a revision with the layered package (method/)
+    .venv/bin/python lab/scripts/recorder_ab.py /tmp/before/mimicgen_pipe/method/generation.py \
         [--blocks 10] [--variant D0]
 
 The other version's generation.py is loaded beside this tree's (the rest of the library is
@@ -16,7 +16,7 @@ and this tree's time over the other's.
 from __future__ import annotations
 
 if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
-    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
+    from mimicgen_pipe.run import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 
@@ -25,15 +25,15 @@ import importlib.util
 import sys
 import time
 
-import envs
-import mimicgen_pipe.generation as this
-from mimicgen_pipe.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
-from mimicgen_pipe.store import read_store
+import mimicgen_pipe.method.generation as this
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.store import read_store
+from mimicgen_pipe.run.runner import ATTEMPTS_PER_BLOCK, attempt_seed, source_demos
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("other", help="the other version's mimicgen_pipe/generation.py")
+    p.add_argument("other", help="the other version's mimicgen_pipe/method/generation.py")
     p.add_argument("--blocks", type=int, default=10)
     p.add_argument("--variant", default="D0")
     p.add_argument("--parsed", default="data/pose_noise/stack_cube.zarr")
@@ -42,9 +42,9 @@ def main() -> None:
     other = importlib.util.module_from_spec(spec_)
     sys.modules["other_generation"] = other  # dataclasses look their module up
     spec_.loader.exec_module(other)
-    spec = envs.task_spec("maniskill", "stack_cube")
+    spec = backends.task_spec("maniskill", "stack_cube")
     sources = source_demos(read_store(args.parsed, ["target_pose"]), spec.objects)
-    env = envs.make_env("maniskill", "stack_cube")
+    env = backends.make_env("maniskill", "stack_cube")
     versions = {"other": other, "this": this}
     seconds = dict.fromkeys(versions, 0.0)
     raw, steps = 0.0, 0

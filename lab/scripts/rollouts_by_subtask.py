@@ -11,14 +11,14 @@ after the subtask before it ended, as parse finds subtask ends in a demo).
 Prints, per checkpoint, one line per subtask (episodes that ended it, and of those that ended
 the one before) and the success rate; ``--out`` writes the same and the step each episode
 ended each subtask. ``--component`` and ``--horizon`` change the rollout protocol (the
-mixture component acted on, mimicgen_pipe.policy.COMPONENTS; the step limit, default the
+mixture component acted on, mimicgen_pipe.learn.policy.COMPONENTS; the step limit, default the
 task's) to measure what it does to the same checkpoints on the same scenes.
 """
 
 from __future__ import annotations
 
 if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
-    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
+    from mimicgen_pipe.run import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 
@@ -27,12 +27,12 @@ import functools
 import json
 from pathlib import Path
 
-import envs
-from mimicgen_pipe.evaluation import EvalJob, Rollout, evaluate_policies, evaluation_seed
-from mimicgen_pipe.executors import stage_executor
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.policy import COMPONENTS
-from mimicgen_pipe.training import load_rollout_policy
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.learn.evaluation import EvalJob, Rollout, evaluate_policies, evaluation_seed
+from mimicgen_pipe.learn.policy import COMPONENTS
+from mimicgen_pipe.learn.training import load_rollout_policy
+from mimicgen_pipe.run.executors import stage_executor
 
 
 def main() -> None:
@@ -53,12 +53,12 @@ def main() -> None:
 
     params = load_params(args.params)
     episodes = args.episodes or params.evaluate.episodes
-    spec = envs.task_spec(args.backend, args.task)
-    envs.check_robot(args.backend, args.robot)
+    spec = backends.task_spec(args.backend, args.task)
+    backends.check_robot(args.backend, args.robot)
     names = [s.name for s in spec.subtasks]
     job = EvalJob(
         make_env=functools.partial(
-            envs.make_env, args.backend, args.task, args.robot, params.maniskill.lean_step
+            backends.make_env, args.backend, args.task, args.robot, params.maniskill.lean_step
         ),
         load_policy=functools.partial(load_rollout_policy, component=args.component),
         variant=args.variant,

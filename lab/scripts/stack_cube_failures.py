@@ -20,7 +20,7 @@ failures (:func:`failure_kind`) and says where the failed ones ended.
 from __future__ import annotations
 
 if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
-    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
+    from mimicgen_pipe.run import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 
@@ -33,10 +33,10 @@ import numpy as np
 import torch
 from _followed import Followed
 
-import envs
-from mimicgen_pipe.evaluation import EPISODES_PER_BLOCK, evaluation_seed, rollout
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.training import load_rollout_policy
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.learn.evaluation import EPISODES_PER_BLOCK, evaluation_seed, rollout
+from mimicgen_pipe.learn.training import load_rollout_policy
 
 TASK = "stack_cube"
 CUBE = 0.04  # [m] StackCube's cube edge: A rests on B with its centre this far above B's
@@ -121,12 +121,12 @@ def main() -> None:
     args = p.parse_args()
     if args.out is not None and args.out.exists():  # before any work; nothing is replaced
         p.error(f"--out {args.out}: already exists; remove it or name another file")
-    spec = envs.task_spec("maniskill", TASK)
-    envs.check_variant(spec, args.variant)
+    spec = backends.task_spec("maniskill", TASK)
+    backends.check_variant(spec, args.variant)
     horizon = args.horizon or spec.horizon
     torch.set_num_threads(1)  # as the evaluate stage's workers: the same sums
     policies = {path: load_rollout_policy(path) for path in args.policy}
-    env = envs.make_env("maniskill", TASK)
+    env = backends.make_env("maniskill", TASK)
     seed0 = load_params().evaluate.seed
     seeds = [evaluation_seed(seed0, args.variant, i) for i in range(args.episodes)]
     rows = []

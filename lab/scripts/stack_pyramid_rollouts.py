@@ -18,7 +18,7 @@ pushed in the plane [m], the hand's closest approach to C [m]. A summary sorts t
 from __future__ import annotations
 
 if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
-    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
+    from mimicgen_pipe.run import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 
@@ -31,12 +31,12 @@ import numpy as np
 import torch
 from _followed import Followed
 
-import envs
-from envs.maniskill.tasks.stack_pyramid import NEAR
-from mimicgen_pipe.evaluation import EPISODES_PER_BLOCK, evaluation_seed, rollout
-from mimicgen_pipe.params import load_params
-from mimicgen_pipe.policy import COMPONENTS
-from mimicgen_pipe.training import load_rollout_policy
+from mimicgen_pipe import backends
+from mimicgen_pipe.data.params import load_params
+from mimicgen_pipe.learn.evaluation import EPISODES_PER_BLOCK, evaluation_seed, rollout
+from mimicgen_pipe.learn.policy import COMPONENTS
+from mimicgen_pipe.learn.training import load_rollout_policy
+from mimicgen_pipe.tasks.maniskill.stack_pyramid import NEAR
 
 TASK = "stack_pyramid"
 HIGH = 0.01  # [m] A let go this far above B's height or more: dropped, not set down
@@ -88,7 +88,7 @@ class _Follow:
 
 
 def episode(env, policy, seed: int, variant: str, horizon: int, objects) -> dict:
-    """One rollout as the evaluate stage runs it (:func:`mimicgen_pipe.evaluation.rollout`),
+    """One rollout as the evaluate stage runs it (:func:`mimicgen_pipe.learn.evaluation.rollout`),
     followed cube by cube (poses world, [m])."""
     follow = _Follow()
     r = rollout(Followed(env, follow), policy, seed, variant, horizon, objects)
@@ -120,11 +120,11 @@ def main() -> None:
     args = p.parse_args()
     if args.out is not None and args.out.exists():  # before any work; nothing is replaced
         p.error(f"--out {args.out}: already exists; remove it or name another file")
-    spec = envs.task_spec("maniskill", TASK)
-    envs.check_variant(spec, args.variant)
+    spec = backends.task_spec("maniskill", TASK)
+    backends.check_variant(spec, args.variant)
     torch.set_num_threads(1)  # as the evaluate stage's workers: the same sums
     policies = {path: load_rollout_policy(path, args.component) for path in args.policy}
-    env = envs.make_env("maniskill", TASK)
+    env = backends.make_env("maniskill", TASK)
     seed0 = load_params().evaluate.seed
     seeds = [evaluation_seed(seed0, args.variant, i) for i in range(args.episodes)]
     rows = []

@@ -12,7 +12,7 @@ Prints a line per (variant, spec) and writes the figures to ``--out``.
 from __future__ import annotations
 
 if __name__ == "__main__":  # mimicgen-pipe's code paths, pinned before numpy or torch loads,
-    from mimicgen_pipe import arithmetic  # so that a run here has the stages' last bits
+    from mimicgen_pipe.run import arithmetic  # so that a run here has the stages' last bits
 
     arithmetic.pin()
 
@@ -26,11 +26,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-import envs  # noqa: E402
-from mimicgen_pipe import layout  # noqa: E402
-from mimicgen_pipe.generation import GenerationConfig, run_attempt  # noqa: E402
-from mimicgen_pipe.runner import attempt_seed, source_demos  # noqa: E402
-from mimicgen_pipe.store import read_store  # noqa: E402
+from mimicgen_pipe import backends  # noqa: E402
+from mimicgen_pipe.data import layout  # noqa: E402
+from mimicgen_pipe.data.store import read_store  # noqa: E402
+from mimicgen_pipe.method.generation import GenerationConfig, run_attempt  # noqa: E402
+from mimicgen_pipe.run.runner import attempt_seed, source_demos  # noqa: E402
 
 
 def main() -> None:
@@ -43,7 +43,7 @@ def main() -> None:
     p.add_argument("--out", required=True, help="figures JSON")
     args = p.parse_args()
 
-    spec = envs.task_spec("maniskill", args.task)
+    spec = backends.task_spec("maniskill", args.task)
     if not spec.constraints:
         sys.exit(f"task {args.task} has no constraints to remove")
     parsed = Path(args.parsed or layout.parsed_store(args.task))
@@ -51,7 +51,7 @@ def main() -> None:
     sources = source_demos(store, spec.objects, spec.arms)
     config = GenerationConfig(action_noise=args.action_noise)
     specs = {"as written": spec, "no constraints": dataclasses.replace(spec, constraints=())}
-    env = envs.make_env("maniskill", args.task)
+    env = backends.make_env("maniskill", args.task)
     rows = []
     try:
         for variant in args.variants:

@@ -1,7 +1,8 @@
-"""The reports: our metrics beside the paper's numbers, as Markdown and HTML.
+"""The reports: our metrics beside the paper's numbers, as Markdown and HTML. Imports core
+and data.
 
 Built only from what is present: every number in them comes from a metrics file (selected
-by the identity fields every stage writes, mimicgen_pipe.metrics), a saved ablation run, or
+by the identity fields every stage writes, mimicgen_pipe.data.metrics), a saved ablation run, or
 the paper's numbers file (each with the table it was read from). A metric that was not
 produced is written ``missing``; no row is made up. A coverage, training or evaluation of
 another generate run than the one shown beside it is marked, never mixed in silently.
@@ -18,8 +19,9 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-from mimicgen_pipe.layout import MEDIA
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.core.taskspec import TaskSpec
+from mimicgen_pipe.data.layout import MEDIA
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report import method, suite
 from mimicgen_pipe.report.ablations import ablation_blocks, suite_ablation_blocks
 from mimicgen_pipe.report.blocks import Block
@@ -37,7 +39,6 @@ from mimicgen_pipe.report.transfer import (
 )
 from mimicgen_pipe.report.transit import transit_blocks
 from mimicgen_pipe.report.videos import video_blocks
-from mimicgen_pipe.taskspec import TaskSpec
 
 
 def build_report(

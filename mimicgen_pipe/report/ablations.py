@@ -7,7 +7,7 @@ import statistics
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from mimicgen_pipe.metrics import Metrics
+from mimicgen_pipe.data.metrics import Metrics
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
 from mimicgen_pipe.report.fmt import (
     MISSING,

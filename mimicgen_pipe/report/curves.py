@@ -21,10 +21,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mimicgen_pipe import layout
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.figures import quiet_matplotlib_import
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.figures import quiet_matplotlib_import
+from mimicgen_pipe.data import layout
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Image, Text
 from mimicgen_pipe.report.inputs import MetricsSet, evaluated, trained
 

@@ -7,7 +7,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from mimicgen_pipe.taskspec import TaskSpec
+from mimicgen_pipe.core.taskspec import TaskSpec
 
 MISSING = "missing"  # a metric that was not produced
 

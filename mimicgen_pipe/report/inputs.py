@@ -1,5 +1,5 @@
 """What the report reads: the metrics files of a folder, selected by their identity fields
-(mimicgen_pipe.metrics), saved ablation runs, heat maps and the render stage's videos."""
+(mimicgen_pipe.data.metrics), saved ablation runs, heat maps and the render stage's videos."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mimicgen_pipe import layout
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.metrics import GENERATE_PURPOSE, Metrics, read_metrics
-from mimicgen_pipe.outputs import check_committed_in
-from mimicgen_pipe.params import Params, load_params
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data import layout
+from mimicgen_pipe.data.metrics import GENERATE_PURPOSE, Metrics, read_metrics
+from mimicgen_pipe.data.outputs import check_committed_in
+from mimicgen_pipe.data.params import Params, load_params
 
 
 @dataclass(frozen=True)

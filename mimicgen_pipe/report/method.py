@@ -6,7 +6,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.core.taskspec import TaskSpec
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Image, Table, Text
 from mimicgen_pipe.report.fmt import (
     CI_NOTE,
@@ -30,7 +31,6 @@ from mimicgen_pipe.report.inputs import (
 )
 from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.report.settings import matches
-from mimicgen_pipe.taskspec import TaskSpec
 
 
 def intro_blocks(task: str, paper_task: str, settings: Mapping[str, Any]) -> list[Block]:

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from mimicgen_pipe.metrics import Metrics
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.core.taskspec import TaskSpec
+from mimicgen_pipe.data.metrics import Metrics
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
 from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_sr
 from mimicgen_pipe.report.inputs import MetricsSet, evaluation
 from mimicgen_pipe.report.paper import PaperResults
-from mimicgen_pipe.taskspec import TaskSpec
 
 ROBOMIMIC = "robomimic"  # the runs' metrics folder, in the suite's metrics folder
 OBS = ("raw", "normalized")  # observations as stored, and normalized by robomimic

@@ -7,8 +7,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mimicgen_pipe.errors import InputError
-from mimicgen_pipe.params import read_yaml
+from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.data.params import read_yaml
 from mimicgen_pipe.report.settings import METHOD_KEYS, changed_settings, matches
 
 METRIC_LABELS = {

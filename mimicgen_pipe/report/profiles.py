@@ -12,12 +12,12 @@ from collections.abc import Mapping, Sequence
 from itertools import product
 from pathlib import Path
 
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.core.taskspec import TaskSpec
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
 from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_sr
 from mimicgen_pipe.report.inputs import MetricsSet, read_metrics_folder
 from mimicgen_pipe.report.paper import PaperResults
-from mimicgen_pipe.taskspec import TaskSpec
 
 PROFILES = "profiles"  # the runs' metrics folders, in the suite's metrics folder
 VARIANTS = ("D0", "D1")  # the variants with policies (paper P.1)

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import io
 
-from mimicgen_pipe.metrics import Metrics
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.data.metrics import Metrics
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Image, Table, Text
 from mimicgen_pipe.report.curves import figure
 from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_dgr, fmt_sr

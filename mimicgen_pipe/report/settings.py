@@ -7,8 +7,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from mimicgen_pipe.params import Params
-from mimicgen_pipe.pose_noise import NAMED_LEVELS
+from mimicgen_pipe.core.noise_levels import NAMED_LEVELS
+from mimicgen_pipe.data.params import Params
 
 # The generation settings an ablation may change (params keys); the paper's entries name
 # theirs with the same keys.

@@ -6,8 +6,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from mimicgen_pipe.metrics import Metrics
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.core.taskspec import TaskSpec
+from mimicgen_pipe.data.metrics import Metrics
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
 from mimicgen_pipe.report.fmt import (
     CI_NOTE,
@@ -27,7 +28,6 @@ from mimicgen_pipe.report.inputs import (
     policy_data,
 )
 from mimicgen_pipe.report.paper import PaperResults
-from mimicgen_pipe.taskspec import TaskSpec
 
 
 def intro_blocks(specs: Sequence[TaskSpec]) -> list[Block]:

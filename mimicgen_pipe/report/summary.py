@@ -6,8 +6,8 @@ counts are known (mimicgen_pipe.report.fmt.wilson_interval)."""
 
 from __future__ import annotations
 
-from mimicgen_pipe.metrics import Metrics
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.data.metrics import Metrics
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.fmt import CI_BOUNDS, dgr_counts, fmt, sr_counts, wilson_interval
 from mimicgen_pipe.report.inputs import MetricsSet, coverage, evaluation, policy_data
 from mimicgen_pipe.report.suite import dgr_run

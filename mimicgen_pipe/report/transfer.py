@@ -6,8 +6,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from mimicgen_pipe.metrics import Metrics
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.core.taskspec import TaskSpec
+from mimicgen_pipe.data.metrics import Metrics
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
 from mimicgen_pipe.report.fmt import CI_NOTE, MISSING, fmt, fmt_dgr
 from mimicgen_pipe.report.inputs import MetricsSet, evaluation
@@ -17,7 +18,6 @@ from mimicgen_pipe.report.suite import (
     TARGET_MARGIN,
     paper_geometry_rows,
 )
-from mimicgen_pipe.taskspec import TaskSpec
 
 
 def transfer_cell(

@@ -3,8 +3,8 @@ with planned transit (generate.transit), side by side."""
 
 from __future__ import annotations
 
-from mimicgen_pipe.metrics import Metrics
-from mimicgen_pipe.params import Params
+from mimicgen_pipe.data.metrics import Metrics
+from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
 from mimicgen_pipe.report.fmt import CI_NOTE, MISSING, fmt, fmt_delta, fmt_dgr, fmt_sr
 from mimicgen_pipe.report.inputs import MetricsSet

@@ -1,0 +1,1 @@
+"""Pictures of episodes: camera images and videos. Imports core, method, data and run."""
