@@ -52,9 +52,7 @@ STALE_SUITE_EDGES = frozenset(
         ),
         "data/source/stack_pyramid.zarr": ("train_suite@stack_pyramid",),
         "data/source/drawer_cleanup.zarr": ("train_suite_d0@drawer_cleanup",),
-        "data/generated/peg_insertion_D0_train.zarr": ("train_suite@peg_insertion",),
         "data/generated/stack_pyramid_D0_train.zarr": ("train_suite@stack_pyramid",),
-        "data/generated/pull_cube_tool_D0_train.zarr": ("train_suite@pull_cube_tool",),
         "data/generated/drawer_cleanup_D0_train.zarr": ("train_suite_d0@drawer_cleanup",),
         "data/generated/peg_insertion_square_D0_train.zarr": (
             "train_suite_seeded@peg_insertion_square",
