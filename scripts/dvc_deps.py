@@ -169,9 +169,14 @@ def pipeline_params(pipeline: Path) -> dict:
 TASKLESS = ("--suite", "--transit")  # report flags: the command reads no single task's file
 
 
+def _words(stage: dict) -> list[str]:
+    """The words of a dvc.yaml stage's command, as written (templates not resolved)."""
+    return str(stage["cmd"]).split()
+
+
 def stage_code(stage: dict, params: dict) -> tuple[str, str, list[str]]:
     """(stage module, back end, task names) that a dvc.yaml stage's command runs."""
-    cmd = _resolve(" ".join(stage["cmd"].split()), params)
+    cmd = _resolve(" ".join(_words(stage)), params)
     words = cmd.split()
     if words[:1] != ["mimicgen-pipe"] or len(words) < 2:
         raise SystemExit(f"a stage command must run mimicgen-pipe: {stage['cmd']!r}")
@@ -198,14 +203,14 @@ def task_file(backend: str, task: str) -> Path:
 def backend_token(stage: dict) -> str:
     """The back end as the stage's command names it (``${suite.backend}``, ``pybullet``), else
     the pipeline's ``backend`` param."""
-    words = " ".join(stage["cmd"].split()).split()
+    words = _words(stage)
     return words[words.index("--backend") + 1] if "--backend" in words else "${backend}"
 
 
 def task_token(stage: dict) -> str:
     """The task as the stage's command names it (``${item.task}``, ``${task}``, a name)."""
-    words = " ".join(stage["cmd"].split()).split()
-    if "${item.task}" in words or any("${item.task}" in w for w in words):
+    words = _words(stage)
+    if any("${item.task}" in w for w in words):
         return "${item.task}"
     return words[words.index("--task") + 1] if "--task" in words else "${task}"
 
@@ -271,17 +276,19 @@ def wanted_deps(pipeline: Path, name: str, stage: dict, params: dict) -> list[st
     return [_rel(d, pipeline, stage) for d in own + code_deps(stage, params)]
 
 
+def listed_here(dep: object, pipeline: Path, stage: dict) -> bool:
+    """Whether a dep of ``stage`` is one these lists hold: project code or the check's stamp."""
+    return is_code(dep) or dep == _rel(stamp(pipeline), pipeline, stage)
+
+
 def params_dep(pipeline: Path, stage: dict) -> str:
     """The pipeline's params file as ``stage`` names it."""
     return _rel(params_path(pipeline).resolve().relative_to(REPO).as_posix(), pipeline, stage)
 
 
 def check_cmd(pipeline: Path, stage: dict) -> str:
-    params_file = _rel(
-        params_path(pipeline).resolve().relative_to(REPO).as_posix(), pipeline, stage
-    )
     out = _rel(stamp(pipeline), pipeline, stage)
-    return f"mimicgen-pipe check --params {params_file} --stamp {out}"
+    return f"mimicgen-pipe check --params {params_dep(pipeline, stage)} --stamp {out}"
 
 
 def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
@@ -299,16 +306,14 @@ def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
     if " ".join(str(check.get("cmd", "")).split()) != check_cmd(pipeline, check):
         out.append(f"{rel}: {CHECK_STAGE}: cmd {check.get('cmd')!r}, should be "
                    f"{check_cmd(pipeline, check)!r}")  # fmt: skip
-    params_file = _rel(
-        params_path(pipeline).resolve().relative_to(REPO).as_posix(), pipeline, check
-    )
+    params_file = params_dep(pipeline, check)
     if check.get("params") != [{params_file: None}]:
         out.append(f"{rel}: {CHECK_STAGE}: params {check.get('params')}, should be the whole "
                    f"params file: [{params_file}:]")  # fmt: skip
     for name, stage in doc["stages"].items():
         deps = stage.get("deps") or []
         wanted = wanted_deps(pipeline, name, stage, params)
-        have = [d for d in deps if is_code(d) or d == wanted[0]]
+        have = [d for d in deps if listed_here(d, pipeline, stage)]
         if sorted(have) != sorted(wanted):
             missing = sorted(set(wanted) - set(have))
             extra = sorted(set(have) - set(wanted))
@@ -347,8 +352,7 @@ def write_deps(pipeline: Path) -> bool:
         end = starts[k + 1] if k + 1 < len(starts) else len(lines)
         at = next((i for i in range(start, end) if lines[i].startswith("    deps:")), None)
         wanted = wanted_deps(pipeline, name, stage, params)
-        rest = [d for d in stage.get("deps") or [] if not is_code(d) and d != wanted[0]
-                and "code_deps/" not in str(d)]  # fmt: skip
+        rest = [d for d in stage.get("deps") or [] if not listed_here(d, pipeline, stage)]
         new = _flow(wanted + rest, "    ")
         if at is None:
             raise SystemExit(f"{pipeline}: {name}: no deps: line to rewrite")
