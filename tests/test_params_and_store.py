@@ -83,7 +83,7 @@ def test_bad_params_name_the_key(tmp_path, text, needle):
 def test_the_scaling_task_is_a_suite_task_with_its_demos(tmp_path, scaling, needle):
     from mimicgen_pipe.stages import check_variants
 
-    suite = "suite: {tasks: [place_sphere], policy_tasks: [place_sphere], scaling: "
+    suite = "suite: {tasks: [place_sphere], scaling: "
     with pytest.raises(InputError, match=needle):
         check_variants(load_params(write(tmp_path, suite + scaling + "}")), "params.yaml")
     ok = suite + "{task: place_sphere, variant: D1}}"

@@ -16,7 +16,7 @@ from mimicgen_pipe import backends
 from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.core.observations import is_robot_key
 from mimicgen_pipe.data import layout, outputs, pipelines
-from mimicgen_pipe.data.params import Params, load_params, with_overrides
+from mimicgen_pipe.data.params import Params, SuiteParams, load_params, with_overrides
 
 
 def add_selection_arguments(p: argparse.ArgumentParser, robot: bool = False) -> None:
@@ -90,11 +90,11 @@ def check_variants(params: Params, path: str) -> None:
                 why = "not in suite.tasks" if task not in u.tasks else "listed twice"
                 raise InputError(f"{path}: {key}: {task!r} is {why}")
             seen.add(task)
+    check_policy_cells(u, path)
     for task in u.robomimic_tasks:
-        if task not in seen:
+        if f"{task}-D0" not in u.policy_data:
             raise InputError(f"{path}: suite.robomimic_tasks: {task!r} has no D0 policy data "
-                             "(it is in none of suite.policy_tasks, d0_policy_tasks and "
-                             "seeded_policy_tasks)")  # fmt: skip
+                             f"({task}-D0 in suite.policy_data)")  # fmt: skip
     scaling = u.scaling
     if scaling.task is not None and scaling.task not in u.tasks:
         raise InputError(f"{path}: suite.scaling.task: {scaling.task!r} is not in suite.tasks")
@@ -124,6 +124,37 @@ def check_variants(params: Params, path: str) -> None:
                     f"{path}: {key}: {v!r} is not a reset variant of {task} on {backend} "
                     f"(known: {', '.join(spec.variants)})"
                 )
+
+
+def check_policy_cells(u: SuiteParams, path: str) -> None:
+    """InputError unless each cell of suite.policy_data and suite.evaluations is named by
+    its fields and names a suite task, every policy's store has its policy_data cell, and
+    every evaluation rolls out a policy the suite trains."""
+    data = {
+        **{t: ("D0", "D1") for t in u.policy_tasks},
+        **{t: ("D0",) for t in u.d0_policy_tasks + u.seeded_policy_tasks},
+    }
+    policies = {t: ("source", *v) for t, v in data.items() if t not in u.seeded_policy_tasks}
+    policies |= {t: ("D0",) for t in u.seeded_policy_tasks}
+    cells = [
+        (f"suite.policy_data.{k}", k, c, f"{c.task}-{c.variant}") for k, c in u.policy_data.items()
+    ]
+    cells += [(f"suite.evaluations.{k}", k, c, f"{c.task}-{c.data}-on-{c.variant}")
+              for k, c in u.evaluations.items()]  # fmt: skip
+    for where, key, cell, name in cells:
+        if key != name:
+            raise InputError(f"{path}: {where}: expected the key {name!r}, which its fields name")
+        if cell.task not in u.tasks:
+            raise InputError(f"{path}: {where}: {cell.task!r} is not in suite.tasks")
+    for task, variants in data.items():
+        for v in variants:
+            if f"{task}-{v}" not in u.policy_data:
+                raise InputError(f"{path}: suite.policy_data: no {task}-{v}, the store of "
+                                 f"{task}'s {v} policy")  # fmt: skip
+    for key, e in u.evaluations.items():
+        if e.data not in policies.get(e.task, ()):
+            raise InputError(f"{path}: suite.evaluations.{key}: the suite trains no {e.data} "
+                             f"policy of {e.task}")  # fmt: skip
 
 
 def stage_params(args: argparse.Namespace) -> Params:
