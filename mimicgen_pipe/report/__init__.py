@@ -79,31 +79,32 @@ def build_suite_report(
     paper: PaperResults,
     scaling_ms: MetricsSet,
     figures: Mapping[str, bytes],
-    profiles: tuple[Sequence[TaskSpec], Mapping[str, MetricsSet]],
+    profiles: tuple[Sequence[TaskSpec], Mapping[str, MetricsSet], Mapping[str, Mapping[str, str]]],
     robomimic: MetricsSet,
 ) -> list[Block]:
     """The task suite's report (params suite.*). ``specs``: the suite's tasks; ``ms``: its
     metrics folder; ``ablations``: task -> its saved ablation runs; ``scaling_ms``: the
     dataset-size comparison's metrics folder, ``figures``: its figure where drawn
-    (mimicgen_pipe.report.scaling); ``profiles``: the tasks, and run -> metrics folder, of
-    D0 policies under other training profiles (mimicgen_pipe.report.profiles);
+    (mimicgen_pipe.report.scaling); ``profiles``: the tasks, run -> metrics folder and
+    run -> how it was made, of D0 policies under other training profiles, made outside the
+    pipeline and shown last (mimicgen_pipe.report.profiles);
     ``robomimic``: the outside learner's metrics folder (mimicgen_pipe.report.outside)."""
     blocks = [
         *suite.intro_blocks(specs),
         *suite.suite_dgr_blocks(params, specs, ms, paper),
         *suite.object_transfer_blocks(params, specs, ms, paper),
         *suite.suite_policy_blocks(params, specs, ms, paper),
-        *suite.paper_geometry_blocks(params, specs, ms, paper, profiles[1]),
-        *profile_blocks(params, *profiles, paper),
+        *suite.paper_geometry_blocks(params, specs, ms, paper),
         *outside_learner_blocks(params, specs, ms, robomimic, paper),
         *suite.long_task_blocks(params, specs, ms, paper),
         *suite.two_arm_blocks(params, specs, ms),
         *scaling_blocks(params, scaling_ms, figures),
     ]
+    # what no stage makes comes last, each section saying so
     for spec in specs:
         if ablations.get(spec.name):
             blocks += suite_ablation_blocks(spec.name, spec.paper_task, ablations[spec.name], paper)
-    return blocks
+    return blocks + profile_blocks(params, profiles[0], profiles[1], paper, profiles[2])
 
 
 def build_transfer_report(

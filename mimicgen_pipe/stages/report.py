@@ -34,7 +34,7 @@ from mimicgen_pipe.report.inputs import (
 )
 from mimicgen_pipe.report.outside import ROBOMIMIC
 from mimicgen_pipe.report.paper import PaperResults, load_paper_results
-from mimicgen_pipe.report.profiles import read_profile_runs
+from mimicgen_pipe.report.profiles import read_made_by, read_profile_runs
 from mimicgen_pipe.report.scaling import DATASET_SIZE, SCALING, draw_dataset_size
 from mimicgen_pipe.report.summary import (
     SUMMARY,
@@ -166,7 +166,7 @@ def _suite(
     # the main task's policies beside the suite's, when trained under other profiles
     main = params.task not in u.tasks and params.backend == u.backend
     own = [backends.task_spec(u.backend, params.task)] if main else []
-    profiles = ([*own, *specs], read_profile_runs(metrics_dir))
+    profiles = ([*own, *specs], read_profile_runs(metrics_dir), read_made_by(metrics_dir))
     outside_dir = metrics_dir / ROBOMIMIC
     outside = read_metrics_folder(outside_dir) if outside_dir.is_dir() else MetricsSet(())
     blocks = build_suite_report(
