@@ -416,12 +416,12 @@ def generate(job: GenerateJob, work: WorkDir | None = None) -> GenerationResult:
     return generation_result(job.attempts, tally, wall)
 
 
-def attempts_bar(total: int, unit: str, label: str | None, **kw: Any) -> tqdm:
-    """The progress bar of a generate run: ``total`` ``unit``s (demos or attempts), none
-    when ``label`` is None. Attempts come back a block at a time, so the time left is
-    estimated from the mean rate so far, not from tqdm's moving average of the last bursts
-    (which swings from hours to 0 s); it settles after the first blocks."""
-    return tqdm(total=total, desc=label, unit=unit, disable=label is None, smoothing=0, **kw)
+def attempts_bar(total: int, unit: str, label: str, **kw: Any) -> tqdm:
+    """The progress bar ``label`` of a generate run: ``total`` ``unit``s (demos or
+    attempts). Attempts come back a block at a time, so the time left is estimated from the
+    mean rate so far, not from tqdm's moving average of the last bursts (which swings from
+    hours to 0 s); it settles after the first blocks."""
+    return tqdm(total=total, desc=label, unit=unit, smoothing=0, **kw)
 
 
 def take_attempts(
