@@ -134,7 +134,7 @@ def test_html_holds_the_same_tables_and_embeds_images():
 def test_build_report_and_the_stage_stay_short():
     from mimicgen_pipe.stages import report
 
-    for f in (build_report, build_suite_report, report.run):
+    for f in (build_report, build_suite_report, report.resolve, report.run):
         assert len(inspect.getsource(f).splitlines()) <= 60, f.__qualname__
 
 
@@ -445,7 +445,7 @@ def run_report(tmp_path: Path, metrics: Path, plots: Path, out: Path) -> None:
                 plots=str(plots), paper=str(PAPER), out=str(out), suite=False,
                 transit=False, transfer=False)  # fmt: skip
     with claims():
-        report.run(argparse.Namespace(**args))
+        report.run(report.resolve(argparse.Namespace(**args)))
 
 
 def folder_bytes(folder: Path) -> dict[str, bytes]:

@@ -730,3 +730,23 @@ def data_params(params: Params, stage: Literal["source", "generate", "observe"])
     if params.backend == "maniskill" and params.maniskill.sim_backend != "physx_cpu":
         out["maniskill"] = {"sim_backend": params.maniskill.sim_backend}
     return out
+
+
+# the check stage's stamp: one constant line, on which every other stage of a pipeline
+# depends, so that DVC runs the check first and its unchanged bytes re-run nothing
+STAMP = "checked by mimicgen-pipe check before the pipeline's other stages\n"
+
+
+@dataclass(frozen=True)
+class CheckJob:
+    """A pipeline's params file ``params_file``, found valid with the files it names (the
+    check stage), and ``stamp``, the file that says so (None: none is written)."""
+
+    params_file: Path
+    stamp: Path | None
+
+
+def write_stamp(job: CheckJob) -> None:
+    """The job's stamp file, :data:`STAMP`, where it has one."""
+    if job.stamp is not None:
+        job.stamp.write_text(STAMP)

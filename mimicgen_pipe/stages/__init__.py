@@ -1,5 +1,12 @@
 """Stage scripts: argument parsing and I/O around the layers of mimicgen_pipe. Imports any
-layer: a stage composes them."""
+layer: a stage composes them.
+
+Every stage module has one shape: ``add_arguments(p)``; ``resolve(args)``, the run its
+command line and params file ask for as a frozen job (``<Stage>Job``), every refusal raised
+there (InputError) before any output is claimed or anything written; and ``run(job)``, which
+claims the job's outputs, does the work and writes them. The command line calls
+``run(resolve(args))``. A job type lives in the library, beside the function that does its
+work, which takes it whole (docs/extending.md, "A stage")."""
 
 from __future__ import annotations
 

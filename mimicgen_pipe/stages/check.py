@@ -12,10 +12,8 @@ from pathlib import Path
 
 from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.core.plain_files import regular_file
-from mimicgen_pipe.data.params import Params, load_params
+from mimicgen_pipe.data.params import CheckJob, Params, load_params, write_stamp
 from mimicgen_pipe.sources import source_inputs
-
-STAMP = "checked by mimicgen-pipe check before the pipeline's other stages\n"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,12 +36,16 @@ def check_named_file(params_file: str, key: str, path: str) -> None:
         raise InputError(f"{params_file}: {key}: {exc}") from None
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> CheckJob:
+    """The params file of ``args``, checked whole with the files it names; writes nothing."""
     params = load_params(args.params)
     if params.source.from_file is not None:  # in the folder its pipeline's source stage tracks
         source_inputs.check_place(args.params, params.source.from_file)
     for key, path in named_files(params).items():
         check_named_file(args.params, key, path)
-    if args.stamp:
-        Path(args.stamp).write_text(STAMP)
-    print(f"check: {Path(args.params)}: valid")
+    return CheckJob(Path(args.params), Path(args.stamp) if args.stamp else None)
+
+
+def run(job: CheckJob) -> None:
+    write_stamp(job)
+    print(f"check: {job.params_file}: valid")
