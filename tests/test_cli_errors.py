@@ -208,10 +208,6 @@ def test_every_stage_has_help(tmp_path, stage):
             "generate.variants: 'D7' is not a reset variant of stack_cube on maniskill "
             "(known: D0, D1)",
         ),
-        (
-            MINIMAL + "transfer: {variants: [D0, D2]}\n",
-            "transfer.variants: 'D2' is not a reset variant of stack on pybullet",
-        ),
         (MINIMAL + "generate: {variants: [D0, D0]}\n", "generate.variants: expected distinct"),
         (
             MINIMAL + "evaluate: {executor: dask}\n",
@@ -230,6 +226,15 @@ def test_params_gaps_are_one_clear_error_at_load(tmp_path, params, expected):
     """Every stage loads params the same way; source stops before recording anything."""
     msg = run_bad(tmp_path, "source", params=params)
     assert expected in msg
+
+
+def test_a_pipelines_own_section_is_checked_by_its_check_stage_only(tmp_path):
+    """Robot transfer's lists are refused by its check stage, the first of its pipeline,
+    before the stamp every other stage depends on is written (not by every stage)."""
+    params = MINIMAL + "transfer: {variants: [D0, D2]}\n"
+    msg = run_bad(tmp_path, "check", "--stamp", "params.checked", params=params)
+    assert "transfer.variants: 'D2' is not a reset variant of stack on pybullet" in msg
+    assert not (tmp_path / "params.checked").exists()
 
 
 def test_source_stops_with_one_error_when_the_demonstrator_falls_short(tmp_path, monkeypatch):

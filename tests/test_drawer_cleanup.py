@@ -165,8 +165,8 @@ def test_a_suite_task_with_policies_must_be_a_suite_task_listed_once(tmp_path):
          "suite.policy_data)"),
     ):  # fmt: skip
         (tmp_path / "params.yaml").write_text(base + extra + "}\n")
-        res = cli("parse", cwd=tmp_path, check=False)
+        res = cli("check", cwd=tmp_path, check=False)  # the suite's rules: its check only
         assert res.returncode == 2
         assert res.stderr.strip().splitlines()[-1] == (
-            f"mimicgen-pipe parse: error: params.yaml: {why}"
+            f"mimicgen-pipe check: error: params.yaml: {why}"
         )

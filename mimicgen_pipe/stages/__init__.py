@@ -23,7 +23,7 @@ from mimicgen_pipe import backends
 from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.core.observations import is_robot_key
 from mimicgen_pipe.data import layout, outputs, pipelines
-from mimicgen_pipe.data.params import Params, SuiteParams, load_params, with_overrides
+from mimicgen_pipe.data.params import Params, load_params, with_overrides
 
 
 def add_selection_arguments(p: argparse.ArgumentParser, robot: bool = False) -> None:
@@ -83,46 +83,16 @@ def episode_count(text: str) -> int:
 
 
 def check_variants(params: Params, path: str) -> None:
-    """InputError naming the params key when the main task (generate.variants), a
-    robot-transfer task (transfer.variants), a suite task (suite.variants) or the scaling
-    task (suite.scaling.variant) lacks one of the listed reset variants, or a suite task with
-    policies or the scaling task is not a suite task (or, with policies, is listed twice),
-    or a task of suite.robomimic_tasks has no D0 policy data, or a task of
-    transfer.policy_tasks is not in transfer.tasks."""
-    u = params.suite
-    seen: set[str] = set()
-    for key in ("suite.policy_tasks", "suite.d0_policy_tasks", "suite.seeded_policy_tasks"):
-        for task in getattr(u, key.split(".")[1]):
-            if task not in u.tasks or task in seen:
-                why = "not in suite.tasks" if task not in u.tasks else "listed twice"
-                raise InputError(f"{path}: {key}: {task!r} is {why}")
-            seen.add(task)
-    check_policy_cells(u, path)
-    for task in u.robomimic_tasks:
-        if f"{task}-D0" not in u.policy_data:
-            raise InputError(f"{path}: suite.robomimic_tasks: {task!r} has no D0 policy data "
-                             f"({task}-D0 in suite.policy_data)")  # fmt: skip
-    scaling = u.scaling
-    if scaling.task is not None and scaling.task not in u.tasks:
-        raise InputError(f"{path}: suite.scaling.task: {scaling.task!r} is not in suite.tasks")
-    if max(scaling.num_demos) > scaling.demos:
-        raise InputError(
-            f"{path}: suite.scaling.num_demos: {max(scaling.num_demos)} is more than the "
-            f"{scaling.demos} demos of suite.scaling.demos"
-        )
-    t = params.transfer
-    for task in t.policy_tasks:
-        if task not in t.tasks:
-            raise InputError(
-                f"{path}: transfer.policy_tasks: {task!r} is not in transfer.tasks (its "
-                "policy data is generated from transfer's source demos)"
-            )
-    lists = [("generate.variants", params.backend, params.task, params.generate.variants)]
-    lists += [("transfer.variants", t.backend, task, t.variants) for task in t.tasks]
-    lists += [("suite.variants", u.backend, task, u.variants) for task in u.tasks]
-    lists += [("suite.object_transfer", u.backend, task, ["O1"]) for task in u.object_transfer]
-    if scaling.task is not None:
-        lists += [("suite.scaling.variant", u.backend, scaling.task, [scaling.variant])]
+    """InputError naming generate.variants when the main task lacks one of its reset
+    variants (the suite's and robot transfer's lists: the check stage of their pipelines)."""
+    check_variant_lists(
+        [("generate.variants", params.backend, params.task, params.generate.variants)], path
+    )
+
+
+def check_variant_lists(lists: list[tuple[str, str, str, list[str]]], path: str) -> None:
+    """InputError naming the params key of the first (key, back end, task, variants) whose
+    task lacks one of the variants."""
     for key, backend, task, variants in lists:
         spec = backends.task_spec(backend, task)
         for v in variants:
@@ -131,37 +101,6 @@ def check_variants(params: Params, path: str) -> None:
                     f"{path}: {key}: {v!r} is not a reset variant of {task} on {backend} "
                     f"(known: {', '.join(spec.variants)})"
                 )
-
-
-def check_policy_cells(u: SuiteParams, path: str) -> None:
-    """InputError unless each cell of suite.policy_data and suite.evaluations is named by
-    its fields and names a suite task, every policy's store has its policy_data cell, and
-    every evaluation rolls out a policy the suite trains."""
-    data = {
-        **{t: ("D0", "D1") for t in u.policy_tasks},
-        **{t: ("D0",) for t in u.d0_policy_tasks + u.seeded_policy_tasks},
-    }
-    policies = {t: ("source", *v) for t, v in data.items() if t not in u.seeded_policy_tasks}
-    policies |= {t: ("D0",) for t in u.seeded_policy_tasks}
-    cells = [
-        (f"suite.policy_data.{k}", k, c, f"{c.task}-{c.variant}") for k, c in u.policy_data.items()
-    ]
-    cells += [(f"suite.evaluations.{k}", k, c, f"{c.task}-{c.data}-on-{c.variant}")
-              for k, c in u.evaluations.items()]  # fmt: skip
-    for where, key, cell, name in cells:
-        if key != name:
-            raise InputError(f"{path}: {where}: expected the key {name!r}, which its fields name")
-        if cell.task not in u.tasks:
-            raise InputError(f"{path}: {where}: {cell.task!r} is not in suite.tasks")
-    for task, variants in data.items():
-        for v in variants:
-            if f"{task}-{v}" not in u.policy_data:
-                raise InputError(f"{path}: suite.policy_data: no {task}-{v}, the store of "
-                                 f"{task}'s {v} policy")  # fmt: skip
-    for key, e in u.evaluations.items():
-        if e.data not in policies.get(e.task, ()):
-            raise InputError(f"{path}: suite.evaluations.{key}: the suite trains no {e.data} "
-                             f"policy of {e.task}")  # fmt: skip
 
 
 def stage_params(args: argparse.Namespace) -> Params:
