@@ -618,6 +618,8 @@ def policy_training(params: Params, name: str, store: Path) -> PolicyTraining:
             # the generate run whose data this is (none for source demos): the report checks it
             "data_run_id": data.attrs.get("run_id"),
             "control_mode": data.attrs.get("control_mode"),
+            # the task version the data was made with (none: version 1)
+            **{k: v for k, v in data.attrs.items() if k == "task_version"},
             "train_episodes": int(data.train.n_episodes),
             "val_episodes": int(data.val.n_episodes),
             "train_params": training_params(train),
@@ -721,6 +723,7 @@ def training_metrics(
         "epoch_seconds": [[int(r["seed"]), int(r["epoch"]), r["seconds"]] for r in curve],
         "torch_threads": prof.threads or torch.get_num_threads(),
         "trainings_side_by_side": side_by_side,
+        **{k: v for k, v in training.meta.items() if k == "task_version"},
     }
 
 

@@ -12,7 +12,7 @@ from typing import Any
 from mimicgen_pipe import backends
 from mimicgen_pipe.core.contracts import BatchEnv
 from mimicgen_pipe.core.errors import InputError
-from mimicgen_pipe.core.taskspec import TaskSpec, arm_key
+from mimicgen_pipe.core.taskspec import TaskSpec, arm_key, check_task_version, version_record
 from mimicgen_pipe.core.transit import TRANSITS
 from mimicgen_pipe.data import layout
 from mimicgen_pipe.data.metrics import split_timings, write_metrics, write_timings
@@ -156,7 +156,7 @@ def run(job: GenerateJob) -> None:
     # written aside, then renamed failed store, metrics, kept store: a reader that finds the
     # new kept store finds the rest of its run beside it
     outs = (job.failed_out, job.metrics_path, job.out)
-    identity = job.identity | {"run_id": job.run_id}
+    identity = job.identity | {"run_id": job.run_id} | version_record(job.spec)
     metrics, timings = split_timings(result.metrics)
     with output_set(*outs) as (tmp_failed, tmp_metrics, tmp_out):
         write_generated(tmp_out, tmp_failed, result, job.spec, job.attrs)
@@ -288,6 +288,7 @@ def check_source_attrs(
                 f"{path}: attrs.{key} is {attrs.get(key)!r}, expected {want!r} (its demos were "
                 f"not recorded for {spec.name} on {backend}; re-run the stages that made it)"
             )
+    check_task_version(attrs, spec, str(path))
     robot = attrs.get("robot")  # recorded as the generated stores' source_robot
     known = backends.backend_package(backend).ROBOTS
     if not isinstance(robot, str) or robot not in known:
@@ -341,4 +342,5 @@ def generated_attrs(
         "objects": list(spec.objects),
         "subtasks": [s.name for s in spec.subtasks],
         "params": data_params(params, "generate"),
+        **version_record(spec),
     }

@@ -9,6 +9,7 @@ import functools
 from mimicgen_pipe import backends
 from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.core.plain_files import regular_file
+from mimicgen_pipe.core.taskspec import version_record
 from mimicgen_pipe.data import layout
 from mimicgen_pipe.data.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.data.outputs import claim, output_set, store_kind
@@ -130,6 +131,7 @@ def run(job: SourceJob) -> None:
                 "objects": list(job.spec.objects),
                 "source_file": str(p.from_file or "demonstrator"),
                 "params": job.data_params,
+                **version_record(job.spec),
             },
         )
         write_metrics(

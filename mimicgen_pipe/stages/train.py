@@ -10,7 +10,9 @@ import csv
 import dataclasses
 from pathlib import Path
 
+from mimicgen_pipe import backends
 from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.taskspec import check_task_version
 from mimicgen_pipe.data import layout
 from mimicgen_pipe.data.metrics import metrics_identity, split_timings, write_metrics, write_timings
 from mimicgen_pipe.data.outputs import claim, output_set
@@ -146,6 +148,9 @@ def resolve(args: argparse.Namespace) -> TrainJob:
         )
         for p in todo
     ]
+    spec = backends.task_spec(params.backend, params.task)
+    for p, training in zip(todo, trainings, strict=True):  # data of the task as it is now
+        check_task_version(training.data.attrs, spec, str(p.store))
     side_by_side = min(t.workers, len(todo) * len(prof.seeds))
     if prof.cameras:
         # an image training uses both cores (its threads), and side by side each process
