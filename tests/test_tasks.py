@@ -132,8 +132,8 @@ def test_a_task_frame_carries_the_source_scenes_hole_into_another_scene():
     source demos' scene its pose is the actor's, bit for bit; in O1's scene, where ManiSkill
     put the hole 2-4 cm elsewhere in the box, the reported pose puts the source scene's hole
     offset exactly onto O1's hole, so an insertion carried in the box's frame follows it."""
-    from mimicgen_pipe.core.poses import pose_from_pq
     from mimicgen_pipe.backends.maniskill.peg_in_hole import hole_frame
+    from mimicgen_pipe.core.poses import pose_from_pq
 
     env = backends.make_env("maniskill", "peg_insertion")
     try:

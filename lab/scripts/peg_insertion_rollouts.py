@@ -31,12 +31,12 @@ import numpy as np
 from _followed import Followed
 
 from mimicgen_pipe import backends
+from mimicgen_pipe.backends.maniskill import peg_in_hole
 from mimicgen_pipe.data.params import load_params
 from mimicgen_pipe.learn.evaluation import evaluation_seed, rollout
 from mimicgen_pipe.learn.policy import COMPONENTS
 from mimicgen_pipe.learn.training import load_rollout_policy
 from mimicgen_pipe.method.generation import Env
-from mimicgen_pipe.backends.maniskill import peg_in_hole
 
 TASK = "peg_insertion"
 
