@@ -82,8 +82,9 @@ def _close_progress_bars() -> None:
 
 
 def build_parser(only: str | None = None) -> tuple[argparse.ArgumentParser, dict[str, Any]]:
-    """The command line's parser, and each stage's module (its ``run``): every stage's, or
-    with ``only`` just that one's, so that one command imports one stage's libraries."""
+    """The command line's parser, and each stage's module (its ``resolve`` and ``run``):
+    every stage's, or with ``only`` just that one's, so that one command imports one stage's
+    libraries."""
     parser = argparse.ArgumentParser(
         prog="mimicgen-pipe",
         description="MimicGen data generation as DVC stages: `dvc repro` runs the default "
@@ -147,7 +148,9 @@ def _run_stage(argv: list[str]) -> int:
     try:
         check_path_names(args)
         with outputs.claims(replace_tracked=args.replace_tracked):
-            modules[args.stage].run(args)
+            # every refusal first (resolve claims nothing), then the work
+            module = modules[args.stage]
+            module.run(module.resolve(args))
     except InputError as exc:
         print(one_line(f"mimicgen-pipe {args.stage}: error: {exc}"), file=sys.stderr)
         return 2

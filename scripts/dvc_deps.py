@@ -35,6 +35,7 @@ import re
 import sys
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -43,6 +44,8 @@ PACKAGES = ("mimicgen_pipe",)
 PIPELINES = (
     "dvc.yaml",
     "suite/dvc.yaml",
+    "suite/robomimic/dvc.yaml",
+    "suite/scaling/dvc.yaml",
     "quickstart/dvc.yaml",
     "transit/dvc.yaml",
     "transfer/dvc.yaml",
@@ -147,11 +150,16 @@ def _resolve(text: str, params: dict) -> str:
     return re.sub(r"\$\{([\w.]+)\}", value, text)
 
 
-def _resolve_list(text: str, params: dict) -> list[str]:
-    node: object = params
+def _resolve_value(text: str, params: dict) -> Any:
+    """The params value that ``text``, one ``${a.b}``, names."""
+    node: Any = params
     for key in text.strip("${}").split("."):
-        node = node[key]  # type: ignore[index]
-    return [str(v) for v in node]  # type: ignore[union-attr]
+        node = node[key]
+    return node
+
+
+def _resolve_list(text: str, params: dict) -> list[str]:
+    return [str(v) for v in _resolve_value(text, params)]
 
 
 def params_path(pipeline: Path) -> Path:
@@ -171,7 +179,12 @@ TASKLESS = ("--suite", "--transit")  # report flags: the command reads no single
 
 def _words(stage: dict) -> list[str]:
     """The words of a dvc.yaml stage's command, as written (templates not resolved)."""
-    return str(stage["cmd"]).split()
+    return str(body(stage)["cmd"]).split()
+
+
+def body(stage: dict) -> dict:
+    """A dvc.yaml stage's body: its ``do`` for a ``foreach`` stage, else the stage."""
+    return stage["do"] if "foreach" in stage else stage
 
 
 def stage_code(stage: dict, params: dict) -> tuple[str, str, list[str]]:
@@ -179,9 +192,12 @@ def stage_code(stage: dict, params: dict) -> tuple[str, str, list[str]]:
     cmd = _resolve(" ".join(_words(stage)), params)
     words = cmd.split()
     if words[:1] != ["mimicgen-pipe"] or len(words) < 2:
-        raise SystemExit(f"a stage command must run mimicgen-pipe: {stage['cmd']!r}")
+        raise SystemExit(f"a stage command must run mimicgen-pipe: {body(stage)['cmd']!r}")
     backend = words[words.index("--backend") + 1] if "--backend" in words else params["backend"]
-    if "${item.task}" in cmd:
+    if "foreach" in stage:  # over named cells of params, each with its task
+        cells = _resolve_value(stage["foreach"], params)
+        tasks = sorted({str(c["task"]) for c in cells.values()})
+    elif "${item.task}" in cmd:
         axis = (stage.get("matrix") or {})["task"]
         tasks = _resolve_list(axis, params) if isinstance(axis, str) else [str(t) for t in axis]
     elif any(flag in words for flag in TASKLESS):
@@ -273,7 +289,7 @@ def stamp(pipeline: Path) -> str:
 def wanted_deps(pipeline: Path, name: str, stage: dict, params: dict) -> list[str]:
     """The code deps and, but for the check stage, the check's stamp, as ``stage`` names them."""
     own = [] if name == CHECK_STAGE else [stamp(pipeline)]
-    return [_rel(d, pipeline, stage) for d in own + code_deps(stage, params)]
+    return [_rel(d, pipeline, body(stage)) for d in own + code_deps(stage, params)]
 
 
 def listed_here(dep: object, pipeline: Path, stage: dict) -> bool:
@@ -300,20 +316,23 @@ def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
     params = pipeline_params(pipeline)
     rel = os.path.relpath(pipeline, REPO)
     check = doc["stages"].get(CHECK_STAGE)
-    if check is None:
-        return [f"{rel}: no {CHECK_STAGE} stage"]
     out = []
-    if " ".join(str(check.get("cmd", "")).split()) != check_cmd(pipeline, check):
+    if check is None and params_path(pipeline).resolve().parent == pipeline.parent.resolve():
+        return [f"{rel}: no {CHECK_STAGE} stage"]
+    # else a pipeline on another's params file, checked by that pipeline's check stage
+    if check is None:
+        pass
+    elif " ".join(str(check.get("cmd", "")).split()) != check_cmd(pipeline, check):
         out.append(f"{rel}: {CHECK_STAGE}: cmd {check.get('cmd')!r}, should be "
                    f"{check_cmd(pipeline, check)!r}")  # fmt: skip
-    params_file = params_dep(pipeline, check)
-    if check.get("params") != [{params_file: None}]:
+    params_file = params_dep(pipeline, check) if check is not None else None
+    if check is not None and check.get("params") != [{params_file: None}]:
         out.append(f"{rel}: {CHECK_STAGE}: params {check.get('params')}, should be the whole "
                    f"params file: [{params_file}:]")  # fmt: skip
     for name, stage in doc["stages"].items():
-        deps = stage.get("deps") or []
+        deps = body(stage).get("deps") or []
         wanted = wanted_deps(pipeline, name, stage, params)
-        have = [d for d in deps if listed_here(d, pipeline, stage)]
+        have = [d for d in deps if listed_here(d, pipeline, body(stage))]
         if sorted(have) != sorted(wanted):
             missing = sorted(set(wanted) - set(have))
             extra = sorted(set(have) - set(wanted))
@@ -350,10 +369,12 @@ def write_deps(pipeline: Path) -> bool:
             continue
         stage = doc["stages"][name]
         end = starts[k + 1] if k + 1 < len(starts) else len(lines)
-        at = next((i for i in range(start, end) if lines[i].startswith("    deps:")), None)
+        at = next((i for i in range(start, end) if re.match(r"^ +deps:", lines[i])), None)
         wanted = wanted_deps(pipeline, name, stage, params)
-        rest = [d for d in stage.get("deps") or [] if not listed_here(d, pipeline, stage)]
-        new = _flow(wanted + rest, "    ")
+        inner = body(stage)
+        rest = [d for d in inner.get("deps") or [] if not listed_here(d, pipeline, inner)]
+        indent = lines[at][: len(lines[at]) - len(lines[at].lstrip())] if at is not None else ""
+        new = _flow(wanted + rest, indent)
         if at is None:
             raise SystemExit(f"{pipeline}: {name}: no deps: line to rewrite")
         stop = at + 1

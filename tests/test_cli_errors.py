@@ -1,16 +1,21 @@
-"""Bad input: one clear error naming what is wrong, exit status 2, nothing written."""
+"""Bad input: one clear error naming what is wrong, exit status 2, nothing written; raised by
+the stage's ``resolve``, before any output is claimed."""
 
 from __future__ import annotations
 
+import argparse
+import importlib
 import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
+from mimicgen_pipe.core.errors import InputError, one_line
 from mimicgen_pipe.data.store import write_store
 from tests.conftest import REPO, cli
 
@@ -128,6 +133,15 @@ def test_params_that_are_not_utf8_are_one_error(tmp_path):
     )
 
 
+def stack_cube_steps(t: int = 30) -> list[dict[str, np.ndarray]]:
+    """One still episode of ``t`` steps of stack_cube as a source store holds it (identity
+    poses, world frame), without term signals."""
+    eye = np.broadcast_to(np.eye(4), (t, 4, 4)).copy()
+    return [{"actions": np.zeros((t, 7), np.float32), "gripper": np.zeros(t, np.float32),
+             "eef_pose": eye, "target_pose": eye, "object_poses/cubeA": eye,
+             "object_poses/cubeB": eye}]  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("name", "content", "expected"),
     [
@@ -141,12 +155,8 @@ def test_params_that_are_not_utf8_are_one_error(tmp_path):
 )  # fmt: skip
 def test_a_bad_boundaries_file_is_one_error(tmp_path, name, content, expected):
     """bool is an int to Python: ``0: [true]`` used to be read as step 1."""
-    t = 30
-    eye = np.broadcast_to(np.eye(4), (t, 4, 4)).copy()
-    steps = [{"actions": np.zeros((t, 7), np.float32), "gripper": np.zeros(t, np.float32),
-              "eef_pose": eye, "target_pose": eye, "object_poses/cubeA": eye,
-              "object_poses/cubeB": eye}]  # fmt: skip
-    write_store(tmp_path / "input" / "src.zarr", "source", steps, {}, {"task": "stack_cube"})
+    write_store(tmp_path / "input" / "src.zarr", "source", stack_cube_steps(), {},
+                {"task": "stack_cube"})  # fmt: skip
     path = tmp_path / "input" / name
     path.write_bytes(content if isinstance(content, bytes) else content.encode())
     msg = run_bad(tmp_path, "parse", "--source", "input/src.zarr", "--boundaries", str(path))
@@ -198,10 +208,6 @@ def test_every_stage_has_help(tmp_path, stage):
             "generate.variants: 'D7' is not a reset variant of stack_cube on maniskill "
             "(known: D0, D1)",
         ),
-        (
-            MINIMAL + "transfer: {variants: [D0, D2]}\n",
-            "transfer.variants: 'D2' is not a reset variant of stack on pybullet",
-        ),
         (MINIMAL + "generate: {variants: [D0, D0]}\n", "generate.variants: expected distinct"),
         (
             MINIMAL + "evaluate: {executor: dask}\n",
@@ -220,6 +226,15 @@ def test_params_gaps_are_one_clear_error_at_load(tmp_path, params, expected):
     """Every stage loads params the same way; source stops before recording anything."""
     msg = run_bad(tmp_path, "source", params=params)
     assert expected in msg
+
+
+def test_a_pipelines_own_section_is_checked_by_its_check_stage_only(tmp_path):
+    """Robot transfer's lists are refused by its check stage, the first of its pipeline,
+    before the stamp every other stage depends on is written (not by every stage)."""
+    params = MINIMAL + "transfer: {variants: [D0, D2]}\n"
+    msg = run_bad(tmp_path, "check", "--stamp", "params.checked", params=params)
+    assert "transfer.variants: 'D2' is not a reset variant of stack on pybullet" in msg
+    assert not (tmp_path / "params.checked").exists()
 
 
 def test_source_stops_with_one_error_when_the_demonstrator_falls_short(tmp_path, monkeypatch):
@@ -248,7 +263,7 @@ def test_source_stops_with_one_error_when_the_demonstrator_falls_short(tmp_path,
                               "--out", str(tmp_path / "s.zarr"),
                               "--metrics", str(tmp_path / "s.json")])  # fmt: skip
     with pytest.raises(InputError, match="gave 1 of source.num_demos = 2 demos .* in 40 seeds"):
-        source.run(args)
+        source.run(source.resolve(args))
     assert seeds[-1] == 39 and not (tmp_path / "s.zarr").exists()
     assert not (tmp_path / "s.json").exists()
 
@@ -391,3 +406,79 @@ def test_check_passes_a_source_file_in_its_pipelines_inputs_folder(
     pipelines_copy(tmp_path, params_file, from_file)
     res = cli("check", "--params", params_file, cwd=tmp_path)
     assert res.stdout.strip() == f"check: {params_file}: valid"
+
+
+# -- refused by resolve: nothing claimed, nothing written -----------------------------------
+
+
+def tree(work: Path) -> list[str]:
+    return sorted(p.relative_to(work).as_posix() for p in work.rglob("*"))
+
+
+def refused_by_resolve(stage: str, work: Path, *argv: str | Path) -> str:
+    """The one line of the InputError that ``stage``'s resolve raises for the command line
+    ``argv`` (the params file ``work``/params.yaml), after checking that it left ``work`` as
+    it was: no output, no folder, no lock file. A stage that claimed its outputs before the
+    check would leave its locks (held until the process ends) and their folders."""
+    module = importlib.import_module(f"mimicgen_pipe.stages.{stage}")
+    parser = argparse.ArgumentParser()
+    module.add_arguments(parser)
+    args = parser.parse_args(["--params", str(work / "params.yaml"), *map(str, argv)])
+    before = tree(work)
+    with pytest.raises(InputError) as exc:
+        module.resolve(args)
+    assert tree(work) == before
+    return one_line(str(exc.value))
+
+
+def test_parse_refuses_a_subtask_end_past_its_demo_before_claiming(tmp_path):
+    (tmp_path / "params.yaml").write_text(MINIMAL)
+    source = tmp_path / "input" / "src.zarr"
+    write_store(source, "source", stack_cube_steps(), {}, {"task": "stack_cube"})
+    boundaries = tmp_path / "input" / "b.yaml"
+    boundaries.write_text("0: [30]\n")  # the demo's 30 steps end at 29
+    out = tmp_path / "out" / "parsed.zarr"
+    msg = refused_by_resolve("parse", tmp_path, "--source", source, "--boundaries", boundaries,
+                             "--out", out)  # fmt: skip
+    expected = "demo 0: subtask 'grasp_cubeA' ends at 30, expected a step in 1..29 (an integer"
+    assert msg.startswith(f"{boundaries}: {expected}")
+    assert not out.parent.exists()
+
+
+def test_pose_noise_refuses_a_store_with_pose_noise_before_claiming(tmp_path):
+    (tmp_path / "params.yaml").write_text(MINIMAL + "pose_noise: {level: L1}\n")
+    parsed = tmp_path / "input" / "noisy.zarr"
+    episodes = {"subtask_term_index": np.array([[10]], np.int64)}
+    write_store(parsed, "parsed", stack_cube_steps(), episodes,
+                {"task": "stack_cube", "pose_noise": {"level": "L1"}})  # fmt: skip
+    out = tmp_path / "out" / "noised.zarr"
+    msg = refused_by_resolve("pose_noise", tmp_path, "--parsed", parsed, "--out", out)
+    assert msg == f"{parsed}: already carries pose noise; give the clean parsed store"
+    assert not out.parent.exists()
+
+
+def test_train_refuses_a_store_of_another_kind_before_claiming(tmp_path):
+    (tmp_path / "params.yaml").write_text(MINIMAL)
+    store = tmp_path / "input" / "parsed.zarr"
+    write_store(store, "parsed", stack_cube_steps(), {}, {"task": "stack_cube"})
+    out = tmp_path / "out"
+    msg = refused_by_resolve("train", tmp_path, "--data", "source", "--store", store,
+                             "--out", out / "policy", "--metrics", out / "m.json",
+                             "--plot", out / "p.csv")  # fmt: skip
+    assert msg == f"{store}: a 'parsed' store, expected 'source'"
+    assert not out.exists()
+
+
+def test_evaluate_refuses_a_broken_checkpoint_before_claiming(tmp_path):
+    """The checkpoints are loaded and checked by resolve (evaluate used to claim its
+    outputs first)."""
+    (tmp_path / "params.yaml").write_text(MINIMAL)
+    checkpoint = tmp_path / "policy" / "seed0" / "epoch00001.pt"
+    checkpoint.parent.mkdir(parents=True)
+    checkpoint.write_bytes(b"not a checkpoint")
+    out = tmp_path / "out"
+    msg = refused_by_resolve("evaluate", tmp_path, "--data", "D1", "--variant", "D1",
+                             "--policies", tmp_path / "policy", "--metrics", out / "m.json",
+                             "--plot", out / "p.csv")  # fmt: skip
+    assert msg.startswith(f"{checkpoint}: ")
+    assert not out.exists()

@@ -23,7 +23,8 @@ fenced code blocks and inline `code` spans:
    and M in the source.
 5. A duration in a block that cites a pipeline's ``dvc.lock`` is that pipeline's whole
    time: within 10 % of the sum of ``wall_seconds`` over the timings files of the metrics
-   files its lock records as outputs (``timings/`` beside ``metrics/``).
+   files its lock records as outputs (``timings/`` beside ``metrics/``), and those of the
+   studies in its folder (the suite's ``suite/<study>/dvc.lock``), which its report reads.
 """
 
 from __future__ import annotations
@@ -169,13 +170,18 @@ def numbers_in(path: Path) -> list[float]:
 @functools.cache
 def pipeline_seconds(lock: Path) -> float:
     """The sum of ``wall_seconds`` over the timings files of the metrics files ``lock``
-    records as outputs."""
+    records as outputs, and the locks of a sub-pipeline's studies (rule 5)."""
     root = lock.parent
     while not (root / ".git").exists() and root != root.parent:
         root = root.parent
-    stages = yaml.load(lock.read_text(), Loader=_Loader)["stages"]
+    studies = sorted(lock.parent.glob("*/dvc.lock")) if lock.parent != root else []
+    stages = [
+        body
+        for one in (lock, *studies)
+        for body in yaml.load(one.read_text(), Loader=_Loader)["stages"].values()
+    ]
     total = 0.0
-    for stage in stages.values():
+    for stage in stages:
         for out in stage.get("outs", []):
             path = timings_file(root / out["path"])
             if path.suffix == ".json" and path.is_file():

@@ -143,6 +143,7 @@ def test_kept_episodes_replay_to_success_with_their_subtasks_in_order(drawer_tas
 
 def test_a_suite_task_with_policies_must_be_a_suite_task_listed_once(tmp_path):
     base = "task: stack\nbackend: pybullet\nsuite: {tasks: [pull_cube_tool, place_sphere], "
+    d0 = "{task: pull_cube_tool, variant: D0}"
     for extra, why in (
         ("policy_tasks: [pull_cube_tool, plug_charger]", "suite.policy_tasks: 'plug_charger' "
          "is not in suite.tasks"),
@@ -150,13 +151,22 @@ def test_a_suite_task_with_policies_must_be_a_suite_task_listed_once(tmp_path):
          "suite.d0_policy_tasks: 'place_sphere' is listed twice"),
         ("policy_tasks: [pull_cube_tool], seeded_policy_tasks: [place_sphere, pull_cube_tool]",
          "suite.seeded_policy_tasks: 'pull_cube_tool' is listed twice"),
-        ("policy_tasks: [pull_cube_tool], robomimic_tasks: [place_sphere]",
-         "suite.robomimic_tasks: 'place_sphere' has no D0 policy data (it is in none of "
-         "suite.policy_tasks, d0_policy_tasks and seeded_policy_tasks)"),
+        ("d0_policy_tasks: [pull_cube_tool]",
+         "suite.policy_data: no pull_cube_tool-D0, the store of pull_cube_tool's D0 policy"),
+        (f"d0_policy_tasks: [pull_cube_tool], policy_data: {{pull_cube_tool-D1: {d0}}}",
+         "suite.policy_data.pull_cube_tool-D1: expected the key 'pull_cube_tool-D0', which "
+         "its fields name"),
+        (f"d0_policy_tasks: [pull_cube_tool], policy_data: {{pull_cube_tool-D0: {d0}}}, "
+         "evaluations: {pull_cube_tool-D1-on-D1: {task: pull_cube_tool, data: D1, variant: D1}}",
+         "suite.evaluations.pull_cube_tool-D1-on-D1: the suite trains no D1 policy of "
+         "pull_cube_tool"),
+        (f"policy_data: {{pull_cube_tool-D0: {d0}}}, robomimic_tasks: [place_sphere]",
+         "suite.robomimic_tasks: 'place_sphere' has no D0 policy data (place_sphere-D0 in "
+         "suite.policy_data)"),
     ):  # fmt: skip
         (tmp_path / "params.yaml").write_text(base + extra + "}\n")
-        res = cli("parse", cwd=tmp_path, check=False)
+        res = cli("check", cwd=tmp_path, check=False)  # the suite's rules: its check only
         assert res.returncode == 2
         assert res.stderr.strip().splitlines()[-1] == (
-            f"mimicgen-pipe parse: error: params.yaml: {why}"
+            f"mimicgen-pipe check: error: params.yaml: {why}"
         )

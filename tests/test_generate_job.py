@@ -1,7 +1,8 @@
-"""A generate request is resolved once (mimicgen_pipe.stages.generate_job.resolve) into one frozen
-job, every check done before any work and before any output is claimed: the job of a small
-PyBullet run field by field, and refusals, the last check's included, that leave the
-working directory as it was and never reach the stage's claim."""
+"""A generate request is resolved once (mimicgen_pipe.stages.generate.resolve) into one frozen
+job (mimicgen_pipe.run.runner.GenerateJob), every check done before any work and before any
+output is claimed: the job of a small PyBullet run field by field, and refusals, the last
+check's included, that leave the working directory as it was and never reach the stage's
+claim."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.run.executors import Executor
 from mimicgen_pipe.run.runner import attempt_seed
 from mimicgen_pipe.stages import generate
-from mimicgen_pipe.stages.generate_job import resolve
+from mimicgen_pipe.stages.generate import resolve
 from tests.conftest import PYBULLET_STACK, stages_copied_to
 from tests.test_imports import imported, project_modules
 
@@ -112,20 +113,19 @@ def test_a_refused_request_raises_from_resolve_before_any_output(
         monkeypatch.setattr(backends, "make_env", far_env)
     before = tree(work)
     with pytest.raises(InputError, match=expected):
-        generate.run(generate_args(work, *argv, params=params))
+        generate.run(resolve(generate_args(work, *argv, params=params)))
     assert tree(work) == before
     assert not (work / "data/new").exists()
 
 
-def test_the_stage_and_the_runner_read_no_params_and_no_back_end():
-    """What a run does is the job's: the generate stage and the runner import neither params
-    nor the back ends (the job module does)."""
+def test_the_runner_reads_no_params_and_no_back_end():
+    """What a run does is the job's: the runner, which runs it, imports neither params nor
+    the back ends (the stage, which resolves it, does)."""
     modules = project_modules()
-    for name in ("mimicgen_pipe.stages.generate", "mimicgen_pipe.run.runner"):
-        assert not imported(name, modules) & {
-            "mimicgen_pipe.data.params",
-            "mimicgen_pipe.backends",
-        }, name
+    assert not imported("mimicgen_pipe.run.runner", modules) & {
+        "mimicgen_pipe.data.params",
+        "mimicgen_pipe.backends",
+    }
     assert {"mimicgen_pipe.data.params", "mimicgen_pipe.backends"} <= imported(
-        "mimicgen_pipe.stages.generate_job", modules
+        "mimicgen_pipe.stages.generate", modules
     )

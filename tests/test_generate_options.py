@@ -39,7 +39,7 @@ def test_attempts_and_num_demos_together_is_one_error(tmp_path):
 
 def test_num_demos_and_transit_stand_in_for_their_keys():
     from mimicgen_pipe.data.params import Params
-    from mimicgen_pipe.stages.generate_job import with_generate_options
+    from mimicgen_pipe.stages.generate import with_generate_options
 
     g = with_generate_options(Params(), None, None, "planned", 7).generate
     assert (g.mode, g.num_demos, g.transit) == ("guarantee", 7, "planned")

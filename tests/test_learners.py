@@ -135,7 +135,7 @@ def short_robomimic_config(name: str, out: Path, epochs: int, steps: int) -> Pat
 def robomimic_losses(stdout: str) -> list[float]:
     """The training loss robomimic's train.py prints after each epoch, read as the
     train_robomimic stage reads robomimic's log."""
-    from mimicgen_pipe.stages.train_robomimic import epoch_losses
+    from mimicgen_pipe.formats.external import epoch_losses
 
     return [loss for _, loss in epoch_losses(stdout)]
 

@@ -19,6 +19,8 @@ PIPELINES = (
     "dvc.yaml",
     "quickstart/dvc.yaml",
     "suite/dvc.yaml",
+    "suite/robomimic/dvc.yaml",
+    "suite/scaling/dvc.yaml",
     "transit/dvc.yaml",
     "transfer/dvc.yaml",
 )
@@ -73,8 +75,8 @@ def _lookup(mapping: object, dotted: str) -> object:
 
 def _wdirs(dvc_file: Path) -> dict[str, Path]:
     stages = (yaml.load(dvc_file.read_text(), _Loader) or {}).get("stages") or {}
-    return {
-        name: (dvc_file.parent / str(body.get("wdir", "."))).resolve()
+    return {  # a foreach stage's body is its ``do``
+        name: (dvc_file.parent / str(body.get("do", body).get("wdir", "."))).resolve()
         for name, body in stages.items()
     }
 

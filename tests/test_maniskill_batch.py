@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,12 +16,19 @@ import torch
 
 from mimicgen_pipe import backends
 from mimicgen_pipe.core.errors import InputError
-from mimicgen_pipe.data.params import Params, data_params
+from mimicgen_pipe.data.params import GenerateParams, Params, data_params
 from mimicgen_pipe.data.store import read_store
 from mimicgen_pipe.method.batched import replay_batched, run_batched
 from mimicgen_pipe.method.generation import GenerationConfig, run_attempt
 from mimicgen_pipe.run.executors import Executor
-from mimicgen_pipe.run.runner import AttemptJob, attempt_seed, generate, source_demos
+from mimicgen_pipe.run.runner import (
+    AttemptJob,
+    AttemptSeeds,
+    GenerateJob,
+    attempt_seed,
+    generate,
+    source_demos,
+)
 from tests.conftest import cli, same_attempt
 
 pytestmark = pytest.mark.sim
@@ -90,7 +98,25 @@ def test_generate_runs_blocks_on_the_batch(sources, one_at_a_time):
         make_batch=functools.partial(backends.make_batch_env, "maniskill", TASK, "panda", 1, None),
         num_envs=1,
     )
-    result = generate(job, seeds, Executor("local", 1))
+    run = GenerateJob(
+        spec=spec,
+        backend_name="maniskill",
+        backend=backends.backend_package("maniskill"),
+        variant=VARIANT,
+        generate=GenerateParams(mode="fixed_attempts", max_attempts=N_SEEDS),
+        note=None,
+        parsed_path=Path("parsed.zarr"),
+        out=Path("kept.zarr"),
+        failed_out=Path("failed.zarr"),
+        metrics_path=Path("m.json"),
+        executor=Executor("local", 1),
+        attempts=job,
+        seeds=AttemptSeeds(0, VARIANT, N_SEEDS),
+        run_id="run",
+        attrs={},
+    )
+    assert list(run.seeds) == seeds
+    result = generate(run)
     got = result.kept + result.failed
     got.sort(key=lambda a: seeds.index(a.seed))
     assert [a.seed for a in got] == seeds

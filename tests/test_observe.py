@@ -163,23 +163,22 @@ def test_same_bytes_with_one_and_two_workers(pybullet_store, tmp_path, monkeypat
 
 def test_a_resumed_run_gives_the_same_bytes(pybullet_store, tmp_path, monkeypatch, capsys):
     import mimicgen_pipe.media.camera_images as library
-    import mimicgen_pipe.stages.observe as observe_stage
 
     monkeypatch.chdir(tmp_path)
     assert observe(tmp_path, pybullet_store, "whole.zarr", "pybullet", "stack")[0] == 0
     whole = tmp_path / "whole.zarr"
-    write = observe_stage.write_observed
+    write = library.write_observed
 
     def interrupted_after_one_block(writer, view, job, images, blocks, *rest):
         next(images)  # the first block, saved in the work directory
         raise Interrupted(signal.SIGTERM)
 
-    monkeypatch.setattr(observe_stage, "write_observed", interrupted_after_one_block)
+    monkeypatch.setattr(library, "write_observed", interrupted_after_one_block)
     code, _ = observe(tmp_path, pybullet_store, "again.zarr", "pybullet", "stack")
     assert code == 143 and "interrupted (SIGTERM); nothing written" in capsys.readouterr().err
     assert not (tmp_path / "again.zarr").exists()
     assert len(list((tmp_path / ".again.zarr.work").glob("block-*.npz"))) == 1
-    monkeypatch.setattr(observe_stage, "write_observed", write)
+    monkeypatch.setattr(library, "write_observed", write)
     rendered = []
     render_block = library._render_block
     monkeypatch.setattr(library, "_render_block", lambda b: rendered.append(b) or render_block(b))

@@ -81,24 +81,24 @@ def test_bad_params_name_the_key(tmp_path, text, needle):
     ],
 )
 def test_the_scaling_task_is_a_suite_task_with_its_demos(tmp_path, scaling, needle):
-    from mimicgen_pipe.stages import check_variants
+    from mimicgen_pipe.stages.check import check_suite
 
-    suite = "suite: {tasks: [place_sphere], policy_tasks: [place_sphere], scaling: "
+    suite = "suite: {tasks: [place_sphere], scaling: "
     with pytest.raises(InputError, match=needle):
-        check_variants(load_params(write(tmp_path, suite + scaling + "}")), "params.yaml")
+        check_suite(load_params(write(tmp_path, suite + scaling + "}")), "params.yaml")
     ok = suite + "{task: place_sphere, variant: D1}}"
-    check_variants(load_params(write(tmp_path, ok)), "params.yaml")
+    check_suite(load_params(write(tmp_path, ok)), "params.yaml")
 
 
 def test_a_transfer_policy_task_is_a_transfer_task(tmp_path):
     """transfer.policy_tasks' policy data comes from transfer's own source demos."""
-    from mimicgen_pipe.stages import check_variants
+    from mimicgen_pipe.stages.check import check_transfer
 
     text = "transfer: {tasks: [stack, stack_three], policy_tasks: [%s]}"
     with pytest.raises(InputError, match="transfer.policy_tasks: 'square_peg' is not in "
                        "transfer.tasks"):  # fmt: skip
-        check_variants(load_params(write(tmp_path, text % "square_peg")), "params.yaml")
-    check_variants(load_params(write(tmp_path, text % "stack_three")), "params.yaml")
+        check_transfer(load_params(write(tmp_path, text % "square_peg")), "params.yaml")
+    check_transfer(load_params(write(tmp_path, text % "stack_three")), "params.yaml")
     with pytest.raises(InputError, match="transfer.policy_seeds: expected a value in"):
         load_params(write(tmp_path, "transfer: {policy_seeds: 0}"))
 

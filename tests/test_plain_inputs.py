@@ -163,7 +163,7 @@ def test_train_robomimic_refuses_such_a_dataset_before_robomimic_starts(tmp_path
     def no_robomimic(*args, **kwargs):
         raise AssertionError("robomimic was started")
 
-    monkeypatch.setattr(train_robomimic, "train", no_robomimic)
+    monkeypatch.setattr(train_robomimic, "train_robomimic", no_robomimic)
     monkeypatch.setattr(train_robomimic, "check_python", lambda python: python)
     path = _robomimic(tmp_path)
     replace(path, "data/demo_0/actions", _external_storage)
@@ -174,7 +174,7 @@ def test_train_robomimic_refuses_such_a_dataset_before_robomimic_starts(tmp_path
                               "--out", str(tmp_path / "run"), "--metrics", str(tmp_path / "m.json"),
                               "--plot", str(tmp_path / "p.csv")])  # fmt: skip
     with pytest.raises(InputError) as exc:
-        train_robomimic.run(args)
+        train_robomimic.run(train_robomimic.resolve(args))
     assert f"{path}: data/demo_0/actions stores its data in another file" in one_line(exc)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.hdf5", "params.yaml", "passwd"]
 
@@ -285,7 +285,7 @@ def test_the_largest_seed_and_none_are_read(tmp_path, reader):
 def test_a_source_store_of_an_unknown_robot_is_refused():
     """Its robot attribute would be recorded as the generated stores' source_robot."""
     from mimicgen_pipe import backends
-    from mimicgen_pipe.stages.generate_job import check_source_attrs
+    from mimicgen_pipe.stages.generate import check_source_attrs
 
     spec, control = (
         backends.task_spec("pybullet", "stack"),

@@ -32,7 +32,7 @@ def run_stage(stage, *argv) -> None:
     """Run a stage module in-process with arguments parsed by its own parser."""
     parser = argparse.ArgumentParser()
     stage.add_arguments(parser)
-    stage.run(parser.parse_args([str(a) for a in argv]))
+    stage.run(stage.resolve(parser.parse_args([str(a) for a in argv])))
 
 
 def random_poses(rng, n):
@@ -215,16 +215,11 @@ def test_coverage_and_report_stages_on_the_pipeline(pipeline, tmp_path):
         (pipeline / "metrics/generate_stack_cube_D1.json").read_bytes()
     )
     plots = tmp_path / "plots"
-    coverage.run(
-        argparse.Namespace(
-            params=str(pipeline / "params.yaml"),
-            variant="D1",
-            generated=str(pipeline / "data/generated/stack_cube_D1.zarr"),
-            metrics=str(metrics / "coverage_stack_cube_D1.json"),
-            table=str(plots / "coverage_stack_cube_D1.csv"),
-            heatmap=str(plots / "coverage_stack_cube_D1.png"),
-        )
-    )
+    run_stage(coverage, "--params", pipeline / "params.yaml", "--variant", "D1",
+              "--generated", pipeline / "data/generated/stack_cube_D1.zarr",
+              "--metrics", metrics / "coverage_stack_cube_D1.json",
+              "--table", plots / "coverage_stack_cube_D1.csv",
+              "--heatmap", plots / "coverage_stack_cube_D1.png")  # fmt: skip
     kept = read_store(pipeline / "data/generated/stack_cube_D1.zarr").n_episodes
     failed = read_store(pipeline / "data/generated/stack_cube_D1_failed.zarr").n_episodes
     rows = list(csv.DictReader((plots / "coverage_stack_cube_D1.csv").open()))
@@ -242,19 +237,8 @@ def test_coverage_and_report_stages_on_the_pipeline(pipeline, tmp_path):
     assert (plots / "coverage_stack_cube_D1.png").read_bytes()[:4] == b"\x89PNG"
 
     out = tmp_path / "report"
-    report.run(
-        argparse.Namespace(
-            params=str(pipeline / "params.yaml"),
-            metrics=str(metrics),
-            ablations=None,
-            plots=str(plots),
-            paper=str(PAPER),
-            out=str(out),
-            suite=False,
-            transit=False,
-            transfer=False,
-        )
-    )
+    run_stage(report, "--params", pipeline / "params.yaml", "--metrics", metrics, "--plots", plots,
+              "--paper", PAPER, "--out", out)  # fmt: skip
     md = (out / "report.md").read_text()
     assert "![initial object positions, stack_cube D1](../plots/coverage_stack_cube_D1.png)" in md
     assert not (out / "coverage_stack_cube_D1.png").exists()  # linked where coverage wrote it

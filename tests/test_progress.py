@@ -13,7 +13,7 @@ from tqdm import tqdm
 from mimicgen_pipe.backends.maniskill.source import PLANNED, follow_planner, planned_counts
 from mimicgen_pipe.data.store import write_store
 from mimicgen_pipe.media import camera_images
-from mimicgen_pipe.media.camera_images import ObserveJob
+from mimicgen_pipe.media.camera_images import ImageJob
 from mimicgen_pipe.run import rollout_progress
 from mimicgen_pipe.run.rollout_progress import read_counts
 
@@ -75,7 +75,7 @@ def test_observe_workers_count_frames_before_a_block_ends(tmp_path, monkeypatch)
     directory = tmp_path / "progress"
     directory.mkdir()
     renderer = CountingRenderer(directory)
-    job = ObserveJob(store, "pybullet", "stack", "panda", ("front",), 2, 3,
+    job = ImageJob(store, "pybullet", "stack", "panda", ("front",), 2, 3,
                      lambda *a: renderer, progress=str(directory))  # fmt: skip
     camera_images._init_worker(job)
     images = camera_images._render_block([0, 1])

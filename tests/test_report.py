@@ -134,7 +134,7 @@ def test_html_holds_the_same_tables_and_embeds_images():
 def test_build_report_and_the_stage_stay_short():
     from mimicgen_pipe.stages import report
 
-    for f in (build_report, build_suite_report, report.run):
+    for f in (build_report, build_suite_report, report.resolve, report.run):
         assert len(inspect.getsource(f).splitlines()) <= 60, f.__qualname__
 
 
@@ -180,7 +180,7 @@ def test_params_with_task_stack_read_no_stack_cube_metrics(tmp_path):
         "--paper", str(PAPER), "--out", "report", cwd=tmp_path)  # fmt: skip
     md = (tmp_path / "report/report.md").read_text()
     # no run of stack was trained, evaluated or ablated: stack_cube's are not taken for it
-    assert "## Policy success rate" not in md and "## Ablations" not in md
+    assert "## Policy success rate" not in md and "ablations" not in md.lower()
     dgr = md.split("## Data generation rate")[1].split("## ")[0]
     assert rows_of(dgr, "| D0 | missing |", "| D1 | missing |") == rows_of(dgr, "| D")
     assert "Robot transfer" not in md  # robot transfer's own pipeline reports it
@@ -309,7 +309,7 @@ def test_report_shows_missing_metrics_and_never_invents_rows():
     assert "63.3 (Table M.2, Stack D1) [no NN + no per-subtask]" in d1[0]  # our settings' row
     assert "Heat maps for D0: missing." in md
     # no policy trained or evaluated, no ablation run saved: no such sections
-    assert "## Policy success rate" not in md and "## Ablations" not in md
+    assert "## Policy success rate" not in md and "ablations" not in md.lower()
 
     ev = m("evaluate", "stack_cube", "D1", data="D1", success_rate_max=96.0,
            success_rate_max_std=1.5, success_rate_last=90.0, success_rate_last_std=2.0,
@@ -445,7 +445,7 @@ def run_report(tmp_path: Path, metrics: Path, plots: Path, out: Path) -> None:
                 plots=str(plots), paper=str(PAPER), out=str(out), suite=False,
                 transit=False, transfer=False)  # fmt: skip
     with claims():
-        report.run(argparse.Namespace(**args))
+        report.run(report.resolve(argparse.Namespace(**args)))
 
 
 def folder_bytes(folder: Path) -> dict[str, bytes]:
@@ -629,7 +629,7 @@ def test_the_suite_report_has_the_suite_sections_only():
         """The suite's report of ``files`` alone: no ablations, scaling, profiles or
         robomimic runs."""
         return build_suite_report(suite_params(tasks), specs, MetricsSet(files), {}, paper,
-                                  MetricsSet(()), {}, ([], {}), MetricsSet(()))  # fmt: skip
+                                  MetricsSet(()), {}, ([], {}, {}), MetricsSet(()))  # fmt: skip
 
     blocks = report(files)
     headings = [b.text for b in blocks if isinstance(b, Heading)]
@@ -737,9 +737,9 @@ def test_suite_policy_table_sets_source_beside_generated_and_the_paper():
 
 def test_paper_geometry_tasks_meet_p1_minus_5_with_their_spread_over_seeds():
     """A task of suite.seeded_policy_tasks gets a row with its D0/D1 DGR beside O.1 and its
-    D0 policies' mean ± std over seeds beside P.1, marked by whether it reaches P.1 − 5, and a
-    row under it for each other profile's run that evaluated it; one seed shows no spread,
-    and a task outside the list gets no row."""
+    D0 policies' mean ± std over seeds beside P.1, marked by whether it reaches P.1 − 5 (runs
+    made outside the pipeline have their own section); one seed shows no spread, and a task
+    outside the list gets no row."""
     specs = [backends.task_spec("maniskill", t) for t in ("stack_tower", "peg_insertion_square")]
     files = [
         gen("stack_tower", "D0", 70.0, purpose="dgr"),
@@ -749,25 +749,16 @@ def test_paper_geometry_tasks_meet_p1_minus_5_with_their_spread_over_seeds():
         m("evaluate", "peg_insertion_square", "D0", data="D0", success_rate_max=96.0,
           success_rate_max_std=0.0, seeds=1),
     ]  # fmt: skip
-    gpu = MetricsSet((m("evaluate", "stack_tower", "D0", data="D0", success_rate_max=88.0,
-                        success_rate_max_std=1.6, seeds=3),))  # fmt: skip
     params = suite_params(["stack_tower", "peg_insertion_square"])
     params = replace(params, suite=replace(params.suite, seeded_policy_tasks=["stack_tower",
                      "peg_insertion_square"]))  # fmt: skip
     paper = load_paper_results(PAPER)
-    blocks = suite.paper_geometry_blocks(
-        params,
-        specs,
-        MetricsSet(tuple(files)),
-        paper,
-        {"paper_gpu": gpu, "cpu_3seeds": MetricsSet(())},
-    )
+    blocks = suite.paper_geometry_blocks(params, specs, MetricsSet(tuple(files)), paper)
     assert blocks[0] == Heading(2, "The paper's own geometry")
     p1 = "88.0 ± 1.6 (Table P.1, Stack Three D0)"
     assert blocks[-1].rows == (
         ("`stack_tower`", "Stack Three", "70.0 [63.3–75.9] / 71.3", "missing / 68.9",
          "`cpu` (the suite's)", "67.3 ± 3.4 (3 seeds)", p1, "no (≥ 83.0)"),
-        ("", "", "", "", "`paper_gpu`", "88.0 ± 1.6 (3 seeds)", p1, "yes (≥ 83.0)"),
         ("`peg_insertion_square`", "Square", "missing / 73.7", "87.5 [82.2–91.4] / 48.9",
          "`cpu` (the suite's)", "96.0 (1 seed)", "98.0 ± 1.6 (Table P.1, Square D0)",
          "yes (≥ 93.0)"),
@@ -854,7 +845,9 @@ def test_suite_ablations_compare_with_their_own_default_run():
         run("pose_noise_L2", l2, 29.5),
     ]
     blocks = suite_ablation_blocks("pull_cube_tool", "Hammer Cleanup", runs, paper)
-    assert blocks[0] == Heading(2, "Ablations on pull_cube_tool (Hammer Cleanup)")
+    heading = "Made outside the pipeline: ablations on pull_cube_tool (Hammer Cleanup)"
+    assert blocks[0] == Heading(2, heading)
+    assert "benchmarks/ablations.py" in blocks[1].text and "outside the pipeline" in blocks[1].text
     rows = {r[0]: r for r in blocks[-1].rows}
     assert rows["default"][1] == "(base)"
     assert rows["action_noise_0"][1:6] == (
@@ -942,7 +935,7 @@ def test_no_report_shows_a_wall_clock_time(tmp_path, monkeypatch):
 
 
 def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
-    from mimicgen_pipe.report.profiles import profile_blocks, read_profile_runs
+    from mimicgen_pipe.report.profiles import profile_blocks, read_made_by, read_profile_runs
 
     assert read_profile_runs(tmp_path) == {}  # no runs: no folder, no section
     specs = [backends.task_spec("maniskill", t) for t in ("peg_insertion", "plug_charger")]
@@ -981,7 +974,21 @@ def test_policies_by_training_profile_show_each_runs_seeds_and_spread(tmp_path):
             write_metrics(path, ident | dict(f.values))
     read = read_profile_runs(tmp_path)
     assert list(read) == ["cpu_3seeds", "paper_gpu"]
-    md = render_markdown(profile_blocks(suite_params([]), specs, read, load_paper_results(PAPER)))
+    assert read_made_by(tmp_path) == {}
+    (tmp_path / "profiles" / "made_by.yaml").write_text(
+        "paper_gpu: {commit: ff94dc9, trained_on: NVIDIA H200, command: scripts/paper_profile.py}\n"
+    )
+    made_by = read_made_by(tmp_path)
+    blocks = profile_blocks(suite_params([]), specs, read, load_paper_results(PAPER), made_by)
+    md = render_markdown(blocks)
+    assert blocks[0] == Heading(2, "Made outside the pipeline: policies by training profile (%)")
+    assert blocks[-1].rows == (
+        ("`cpu_3seeds`", "not recorded", "not recorded", "not recorded"),
+        ("`paper_gpu`", "ff94dc9", "NVIDIA H200", "scripts/paper_profile.py"),
+    )
+    (tmp_path / "profiles" / "made_by.yaml").write_text("paper_gpu: {commit: ff94dc9}\n")
+    with pytest.raises(InputError, match="made_by.yaml: expected run: {commit, trained_on, "):
+        read_made_by(tmp_path)
     assert rows_of(md, "| peg_insertion |") == [
         "| peg_insertion | D0 | cpu_3seeds | 5000 | panda | cpu (cpu) | 100 | 200 | 3 | 4 | 400 "
         "| 60.0 ± 4.0 | 50.0 ± 8.2 | 98.0 ± 1.6 (Table P.1, Square D0) |",

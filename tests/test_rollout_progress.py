@@ -18,10 +18,12 @@ import pytest
 from mimicgen_pipe import backends
 from mimicgen_pipe.core.cameras import CameraRenderer
 from mimicgen_pipe.data.metrics import evaluation_metrics
+from mimicgen_pipe.data.params import EvaluateParams
 from mimicgen_pipe.formats.external import PolicySpec, lerobot, policy_cameras, robomimic
 from mimicgen_pipe.learn.evaluation import (
     Checkpoints,
     EvalJob,
+    EvaluateJob,
     evaluate_checkpoints,
     evaluate_policies,
     rollout_plan,
@@ -202,8 +204,15 @@ def test_evaluate_records_the_best_checkpoint_s_epoch():
     is the run's best."""
     paths = [Path(f"seed0/epoch{e:05d}.pt") for e in (25, 50, 75)]
     checkpoints = Checkpoints({0: paths}, {p: int(p.stem[5:]) for p in paths}, None)
-    job = EvalJob(make_env=FakeEnv, load_policy=SucceedsAt, variant="D0", horizon=3, objects=())
-    per_run, _ = evaluate_checkpoints(job, checkpoints, [1, 2], Executor("local", 1), "t")
+    rollouts = EvalJob(make_env=FakeEnv, load_policy=SucceedsAt, variant="D0", horizon=3,
+                       objects=())  # fmt: skip
+    job = EvaluateJob(
+        task="t", backend="fake", robot="panda", data="D0", variant="D0", policies=Path("seed0"),
+        checkpoints=checkpoints, inputs={}, seeds=(1, 2), evaluate=EvaluateParams(),
+        executor=Executor("local", 1), rollouts=rollouts, metrics_path=Path("m.json"),
+        plot=Path("p.csv"),
+    )  # fmt: skip
+    per_run, _ = evaluate_checkpoints(job)
     assert per_run == {0: [(25, 0.0), (50, 100.0), (75, 0.0)]}
     assert evaluation_metrics(per_run)["seed0_best_epoch"] == 50
 

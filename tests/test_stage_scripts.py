@@ -24,7 +24,7 @@ from mimicgen_pipe.learn.training import (
     default_device,
     train_config,
 )
-from mimicgen_pipe.stages.generate_job import capped_action_noise, with_generate_options
+from mimicgen_pipe.stages.generate import capped_action_noise, with_generate_options
 
 REPO = Path(__file__).resolve().parents[1]
 MAX_RUN_LINES = 60
@@ -42,6 +42,46 @@ def test_every_stage_run_is_at_most_60_lines():
         f"run longer than {MAX_RUN_LINES} lines: {too_long}; "
         "move logic into a layer (mimicgen_pipe/<layer>/)"
     )
+
+
+def job_type(stage: str) -> str:
+    """The name of a stage's job type: train_robomimic -> TrainRobomimicJob."""
+    return "".join(word.title() for word in stage.split("_")) + "Job"
+
+
+def stage_shape(path: Path) -> tuple[bool, str | None, list[str], str | None, bool]:
+    """What a stage module is made of: whether it has add_arguments, resolve's return
+    annotation, run's parameters' annotations, the module its job type is imported from
+    (None: not imported), and whether it defines a class."""
+    tree = ast.parse(path.read_text())
+    functions = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
+    imports = {
+        alias.name: node.module
+        for node in tree.body
+        if isinstance(node, ast.ImportFrom)
+        for alias in node.names
+    }
+    resolve, run = functions.get("resolve"), functions.get("run")
+    return (
+        "add_arguments" in functions,
+        ast.unparse(resolve.returns) if resolve and resolve.returns else None,
+        [ast.unparse(a.annotation) if a.annotation else "" for a in run.args.args] if run else [],
+        imports.get(job_type(path.stem)),
+        any(isinstance(n, ast.ClassDef) for n in ast.walk(tree)),
+    )
+
+
+def test_every_stage_has_one_shape():
+    """add_arguments(p), resolve(args) -> <Stage>Job and run(job: <Stage>Job), the job type
+    imported from the layer of the function that does the stage's work, never defined among
+    the stages (the command line calls run(resolve(args)))."""
+    for stage in STAGES:
+        has_arguments, returns, takes, home, classes = stage_shape(
+            REPO / f"mimicgen_pipe/stages/{stage}.py"
+        )
+        job = job_type(stage)
+        assert (has_arguments, returns, takes, classes) == (True, job, [job], False), stage
+        assert home is not None and home.split(".")[:2] != ["mimicgen_pipe", "stages"], stage
 
 
 def test_no_two_classes_share_a_name():

@@ -132,8 +132,8 @@ def test_a_task_frame_carries_the_source_scenes_hole_into_another_scene():
     source demos' scene its pose is the actor's, bit for bit; in O1's scene, where ManiSkill
     put the hole 2-4 cm elsewhere in the box, the reported pose puts the source scene's hole
     offset exactly onto O1's hole, so an insertion carried in the box's frame follows it."""
+    from mimicgen_pipe.backends.maniskill.peg_in_hole import hole_frame
     from mimicgen_pipe.core.poses import pose_from_pq
-    from mimicgen_pipe.tasks.maniskill.peg_insertion import hole_frame
 
     env = backends.make_env("maniskill", "peg_insertion")
     try:
@@ -268,3 +268,30 @@ def test_stack_tower_reports_its_own_success_in_the_pyramids_scene():
     finally:
         tower.close()
         pyramid.close()
+
+
+def test_a_task_version_is_recorded_from_two_on_and_data_of_another_is_refused(tmp_path):
+    """Every task is at version 1, which stores record by saying nothing (their bytes as
+    before versions); a task file raised to version 2 writes it into its generated stores'
+    attributes, and the check that generate and train run on their input stores refuses
+    data of version 1, naming the store."""
+    import dataclasses
+
+    from mimicgen_pipe.core.taskspec import check_task_version, version_record
+    from mimicgen_pipe.data.params import Params
+    from mimicgen_pipe.stages.generate import generated_attrs
+
+    for backend in choices("mimicgen_pipe.backends"):
+        for task in choices(f"mimicgen_pipe.tasks.{backend}"):
+            spec = backends.task_spec(backend, task)
+            assert spec.version == 1 and version_record(spec) == {}, task
+    spec = backends.task_spec("maniskill", "stack_cube")
+    v2 = dataclasses.replace(spec, version=2)
+    source = {"robot": "panda", "control_mode": "pd_ee_delta_pose", "control_freq": 20}
+    assert "task_version" not in generated_attrs("r", Params(), "D0", spec, source)
+    assert generated_attrs("r", Params(), "D0", v2, source)["task_version"] == 2
+    check_task_version({}, spec, "x.zarr")  # no record: version 1
+    check_task_version({"task_version": 2}, v2, "x.zarr")
+    with pytest.raises(InputError, match="data/parsed/stack_cube.zarr: made with version 1 of "
+                       "task stack_cube, whose file is at version 2; re-run"):  # fmt: skip
+        check_task_version({}, v2, "data/parsed/stack_cube.zarr")

@@ -12,6 +12,7 @@ import pytest
 
 from mimicgen_pipe.data.metrics import (
     IDENTITY_FIELDS,
+    cpu_type,
     generation_metrics,
     is_timing,
     metrics_identity,
@@ -93,7 +94,7 @@ def test_write_timings_writes_identity_and_times_beside_the_metrics(tmp_path: Pa
     identity = metrics_identity("render", "stack_cube", "maniskill", "panda", variant="D0")
     path = write_timings(tmp_path / "metrics" / "r.json", identity, {"ms_per_frame": 12.5})
     assert path == tmp_path / "timings" / "r.json"
-    assert json.loads(path.read_text()) == identity | {"ms_per_frame": 12.5}
+    assert json.loads(path.read_text()) == identity | {"ms_per_frame": 12.5, "cpu": cpu_type()}
     assert [p.name for p in path.parent.iterdir()] == ["r.json"]  # no temporary left
     with pytest.raises(ValueError, match="frames"):
         write_timings(tmp_path / "metrics" / "r.json", identity, {"frames": 3})
@@ -130,3 +131,24 @@ def test_committed_metrics_hold_no_time_and_timings_only_times() -> None:
     for path in [*repo.glob("timings/**/*.json"), *repo.glob("*/timings/**/*.json")]:
         timed |= set(json.loads(path.read_text()))
     assert timed - known == {*IDENTITY_FIELDS, "run_id"}
+
+
+def test_the_cpu_type_names_vendor_model_and_the_kernel_flags() -> None:
+    """Where a stage ran, as /proc/cpuinfo says: the first processor's vendor, model and the
+    flags that pick numpy's and torch's kernels (AVX-512 moves last bits)."""
+    zen4 = (
+        "processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 17\n"
+        "model name\t: AMD EPYC 9R14\nflags\t\t: fpu sse2 avx2 fma avx512f avx512_vnni\n\n"
+        "processor\t: 1\nvendor_id\t: GenuineIntel\n"
+    )
+    assert cpu_type(zen4) == {
+        "vendor": "AuthenticAMD", "model_name": "AMD EPYC 9R14", "family": 25, "model": 17,
+        "flags": ["avx2", "fma", "avx512f", "avx512_vnni"],
+    }  # fmt: skip
+    assert cpu_type("") == {
+        "vendor": None,
+        "model_name": None,
+        "family": None,
+        "model": None,
+        "flags": [],
+    }

@@ -219,7 +219,7 @@ def run_source(tmp_path: Path, monkeypatch, params: str) -> None:
     args = parser.parse_args(["--params", str(tmp_path / "params.yaml"),
                               "--out", str(tmp_path / "s.zarr"),
                               "--metrics", str(tmp_path / "s.json")])  # fmt: skip
-    source.run(args)
+    source.run(source.resolve(args))
 
 
 def test_a_short_trajectory_file_stops_the_source_stage_before_the_simulator(tmp_path, monkeypatch):
@@ -258,6 +258,27 @@ def test_a_short_robomimic_file_stops_the_source_stage(tmp_path, monkeypatch):
         run_source(tmp_path, monkeypatch, params)
 
 
+def test_a_robomimic_file_of_other_states_is_refused_before_any_output(tmp_path):
+    """Its states are held to an env's by the source stage's resolve, before any output is
+    claimed (the file's 9 values a step are no PyBullet stack state)."""
+    from tests.test_cli_errors import refused_by_resolve
+
+    path = robomimic_file(tmp_path / "d.hdf5", 2)
+    (tmp_path / "params.yaml").write_text(
+        f"task: stack\nbackend: pybullet\nsource: {{num_demos: 2, from_file: {path}}}\n"
+    )
+    out = tmp_path / "out"
+    msg = refused_by_resolve(
+        "source", tmp_path, "--out", out / "s.zarr", "--metrics", out / "s.json"
+    )
+    assert re.fullmatch(
+        rf"{re.escape(str(path))}: data/demo_0/states has 9 values per step, expected \d+ "
+        r"\(the pybullet stack state with panda\)",
+        msg,
+    ), msg
+    assert not out.exists()
+
+
 def test_a_maniskill_file_on_pybullet_stops_the_source_stage(tmp_path, monkeypatch):
     h5 = trajectory_file(tmp_path / "input")
     params = f"task: stack\nbackend: pybullet\nsource: {{num_demos: 1, from_file: {h5}}}\n"
@@ -292,9 +313,10 @@ def run_source_recorded(tmp_path: Path, monkeypatch, section: str, *argv: str) -
     (tmp_path / "params.yaml").write_text(f"task: stack_cube\nsource: {section}\n")
     parser = argparse.ArgumentParser()
     source.add_arguments(parser)
-    source.run(parser.parse_args(["--params", str(tmp_path / "params.yaml"),
-                                  "--out", str(tmp_path / "s.zarr"),
-                                  "--metrics", str(tmp_path / "s.json"), *argv]))  # fmt: skip
+    args = parser.parse_args(["--params", str(tmp_path / "params.yaml"),
+                              "--out", str(tmp_path / "s.zarr"),
+                              "--metrics", str(tmp_path / "s.json"), *argv])  # fmt: skip
+    source.run(source.resolve(args))
     return (tmp_path / "s.json").read_bytes()
 
 

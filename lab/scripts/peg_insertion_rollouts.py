@@ -31,19 +31,19 @@ import numpy as np
 from _followed import Followed
 
 from mimicgen_pipe import backends
+from mimicgen_pipe.backends.maniskill import peg_in_hole
 from mimicgen_pipe.data.params import load_params
 from mimicgen_pipe.learn.evaluation import evaluation_seed, rollout
 from mimicgen_pipe.learn.policy import COMPONENTS
 from mimicgen_pipe.learn.training import load_rollout_policy
 from mimicgen_pipe.method.generation import Env
-from mimicgen_pipe.tasks.maniskill import peg_insertion
 
 TASK = "peg_insertion"
 
 
 def head_in_hole(env: Env) -> tuple[float, float]:
     """The peg head's depth along the hole's axis and its distance from the axis [m]."""
-    x, y, z = peg_insertion.head_in_hole(env.unwrapped)
+    x, y, z = peg_in_hole.head_in_hole(env.unwrapped)
     return float(x), float(np.hypot(y, z))
 
 

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
+from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.core.observations import observation_dims, observation_keys
 
 ARM_ACTION_DIM = 7  # one arm's action: delta position (3), delta rotation (3), gripper (1)
@@ -109,6 +110,9 @@ class TaskSpec:
         take; generation uses no more, whatever it is asked for (the paper, too, sets its
         generation knobs per task, M.6). None: no cap.
     constraints: between subtasks of two arms (SubtaskConstraint); none for one arm.
+    version: the task's behaviour version, raised by one whenever what its file does changes
+        (scene, reset variants, signals, success test, demonstrator); stores and policies
+        record it (:func:`version_record`), and generate and train refuse data of another.
     """
 
     name: str
@@ -120,6 +124,7 @@ class TaskSpec:
     obs_keys: tuple[str, ...] = ()
     max_action_noise: float | None = None
     constraints: tuple[SubtaskConstraint, ...] = ()
+    version: int = 1
 
     def action_noise(self, sigma: float) -> float:
         """The action-noise sigma generation uses when asked for ``sigma``."""
@@ -297,3 +302,21 @@ def check_constraints(spec: TaskSpec) -> None:
     for u in list(edges):
         if u not in state:
             visit(u, [u])
+
+
+def version_record(spec: TaskSpec) -> dict[str, int]:
+    """What a store, a checkpoint or a metrics file records of ``spec``'s version:
+    ``{"task_version": N}``, and nothing at version 1, which a record without one means (so
+    that what was made before versions keeps its bytes)."""
+    return {} if spec.version == 1 else {"task_version": spec.version}
+
+
+def check_task_version(attrs: Mapping[str, Any], spec: TaskSpec, where: str) -> None:
+    """InputError naming ``where`` when the data whose attributes are ``attrs`` was made with
+    another version of ``spec``'s task than its file has now."""
+    made = attrs.get("task_version", 1)
+    if made != spec.version:
+        raise InputError(
+            f"{where}: made with version {made} of task {spec.name}, whose file is at version "
+            f"{spec.version}; re-run the stages that made it"
+        )

@@ -175,16 +175,49 @@ def write_metrics(path: str | os.PathLike, metrics: Mapping[str, Any]) -> Path:
     return _write_json(Path(path), metrics)
 
 
+# the CPU flags whose presence changes which kernels numpy, torch and OpenBLAS run, and so
+# the last bits of a float: the pins hold them equal on one CPU type, not across types
+KERNEL_FLAGS = ("avx2", "fma", "avx512f", "avx512_vnni", "amx_tile")
+
+
+def cpu_type(cpuinfo: str | None = None) -> dict[str, Any]:
+    """The CPU a stage ran on, for its timings file: vendor, model name, family and model
+    numbers, and which of KERNEL_FLAGS it has (``cpuinfo``: /proc/cpuinfo's text, read when
+    None; fields it lacks are None)."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            cpuinfo = ""
+    first: dict[str, str] = {}
+    for line in cpuinfo.split("\n\n", 1)[0].splitlines():  # the first processor's block
+        key, _, value = line.partition(":")
+        first.setdefault(key.strip(), value.strip())
+    flags = set(first.get("flags", "").split())
+
+    def number(key: str) -> int | None:
+        return int(first[key]) if first.get(key, "").isdigit() else None
+
+    return {
+        "vendor": first.get("vendor_id"),
+        "model_name": first.get("model name"),
+        "family": number("cpu family"),
+        "model": number("model"),
+        "flags": [f for f in KERNEL_FLAGS if f in flags],
+    }
+
+
 def write_timings(
     metrics_path: str | os.PathLike, identity: Mapping[str, Any], timings: Mapping[str, Any]
 ) -> Path | None:
     """Write ``identity`` (the metrics file's identity fields, and its run id where it has
-    one) and the wall-clock fields ``timings`` atomically to :func:`timings_file` of the
-    final ``metrics_path``. Called after the stage's outputs are committed: the file is
-    informational, no output of the stage, so what keeps it from being written (a path that
-    holds anything but a JSON object, which is left alone; a full disk) is one warning line
-    and the stage still succeeds; returns None then. ValueError for a field of ``timings``
-    that is not a time or one of ``identity`` that is."""
+    one), the wall-clock fields ``timings`` and the CPU they were taken on (``cpu``,
+    :func:`cpu_type`) atomically to :func:`timings_file` of the final ``metrics_path``.
+    Called after the stage's outputs are committed: the file is informational, no output of
+    the stage, so what keeps it from being written (a path that holds anything but a JSON
+    object, which is left alone; a full disk) is one warning line and the stage still
+    succeeds; returns None then. ValueError for a field of ``timings`` that is not a time or
+    one of ``identity`` that is."""
     if wrong := sorted(k for k in timings if not is_timing(k)):
         raise ValueError(f"{metrics_path}: {wrong} are not wall-clock fields")
     if wrong := sorted(k for k in identity if is_timing(k)):
@@ -193,7 +226,7 @@ def write_timings(
     why = METRICS.why_not(path) if path.exists() else None  # a link is replaced, as outputs are
     try:
         if why is None:
-            return _write_json(path, {**identity, **timings})
+            return _write_json(path, {**identity, **timings, "cpu": cpu_type()})
     except OSError as exc:
         why = f"cannot be written ({exc.strerror or exc})"
     print(f"warning: {path} {why}; the times of this run are not kept", file=sys.stderr)

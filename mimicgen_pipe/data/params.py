@@ -273,6 +273,25 @@ class ScalingParams:
 
 
 @dataclass(frozen=True)
+class PolicyData:
+    """A store the suite's policies train on: generate.num_demos kept demos of ``task`` on
+    reset variant ``variant`` (data/generated/<task>_<variant>_train.zarr)."""
+
+    task: str
+    variant: str
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One policy of the suite rolled out: ``task``'s policy on ``data`` ("source", or a
+    reset variant's policy data) on reset variant ``variant``."""
+
+    task: str
+    data: str
+    variant: str
+
+
+@dataclass(frozen=True)
 class SuiteParams:
     """The task suite (suite/dvc.yaml): every task x variant generated from its own source
     demos, ``attempts`` fixed attempts each, on ``backend``, with action noise
@@ -285,8 +304,11 @@ class SuiteParams:
     d0_policy_tasks: tasks with policies on D0 only (source and D0 data);
     seeded_policy_tasks: tasks with one policy, on D0 data, trained with seeds
     0..``policy_seeds``-1 (the others with the profile's seeds), for a mean ± std over seeds
-    as Table P.1's. All among ``tasks``, none in two lists. robomimic_tasks: tasks, each
-    with D0 policy data (in one of those lists), on whose 1000 D0 demos robomimic 0.3.0's
+    as Table P.1's. All among ``tasks``, none in two lists. policy_data: the stores they
+    train on, and evaluations: which policy is rolled out on which variant, one stage each,
+    named by its key (``<task>-<variant>``, ``<task>-<data>-on-<variant>``).
+    robomimic_tasks: tasks, each
+    with D0 policy data (in policy_data), on whose 1000 D0 demos robomimic 0.3.0's
     own BC-RNN also trains at our profile's size, with and without its observation
     normalisation (an outside learner beside ours). scaling: the dataset-size comparison
     (ScalingParams)."""
@@ -297,10 +319,12 @@ class SuiteParams:
     attempts: int = 200
     action_noise: float = 0.025
     object_transfer: list[str] = field(default_factory=list)
-    policy_tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
+    policy_tasks: list[str] = field(default_factory=list)
     d0_policy_tasks: list[str] = field(default_factory=list)
     seeded_policy_tasks: list[str] = field(default_factory=list)
     policy_seeds: int = 3
+    policy_data: dict[str, PolicyData] = field(default_factory=dict)
+    evaluations: dict[str, Evaluation] = field(default_factory=dict)
     robomimic_tasks: list[str] = field(default_factory=list)
     scaling: ScalingParams = field(default_factory=ScalingParams)
 
@@ -553,12 +577,27 @@ def _build(cls: type, raw: Any, where: str, path: Path) -> Any:
     if unknown:
         key = f"{where}.{unknown[0]}" if where else str(unknown[0])
         raise InputError(f"{path}: {key}: unknown key (known: {', '.join(sorted(names))})")
+    none = dataclasses.MISSING
+    required = [
+        f.name for f in dataclasses.fields(cls) if f.default is none and f.default_factory is none
+    ]
+    missing = [n for n in required if n not in raw]
+    if missing:
+        key = f"{where}.{missing[0]}" if where else missing[0]
+        raise InputError(f"{path}: {key}: missing (a {cls.__name__} has {', '.join(required)})")
     kwargs = {}
     for name in names & set(raw):
         key = f"{where}.{name}" if where else name
         tp, value = hints[name], raw[name]
         if dataclasses.is_dataclass(tp):
             kwargs[name] = _build(tp, value, key, path)
+            continue
+        if typing.get_origin(tp) is dict:  # named cells, each a section of its own
+            if not isinstance(value, dict):
+                raise InputError(f"{path}: {key}: expected a mapping of named cells, got "
+                                 f"{_short(value)}")  # fmt: skip
+            cell = typing.get_args(tp)[1]
+            kwargs[name] = {str(k): _build(cell, v, f"{key}.{k}", path) for k, v in value.items()}
             continue
         why = _CHECKS[key](value) if key in _CHECKS else None
         if why:
@@ -691,3 +730,23 @@ def data_params(params: Params, stage: Literal["source", "generate", "observe"])
     if params.backend == "maniskill" and params.maniskill.sim_backend != "physx_cpu":
         out["maniskill"] = {"sim_backend": params.maniskill.sim_backend}
     return out
+
+
+# the check stage's stamp: one constant line, on which every other stage of a pipeline
+# depends, so that DVC runs the check first and its unchanged bytes re-run nothing
+STAMP = "checked by mimicgen-pipe check before the pipeline's other stages\n"
+
+
+@dataclass(frozen=True)
+class CheckJob:
+    """A pipeline's params file ``params_file``, found valid with the files it names (the
+    check stage), and ``stamp``, the file that says so (None: none is written)."""
+
+    params_file: Path
+    stamp: Path | None
+
+
+def write_stamp(job: CheckJob) -> None:
+    """The job's stamp file, :data:`STAMP`, where it has one."""
+    if job.stamp is not None:
+        job.stamp.write_text(STAMP)

@@ -3,10 +3,10 @@ stage run by hand never replaces a pipeline's tracked result, and a missing inpu
 stage that makes it.
 
 A path is *tracked* when it is, or lies inside, an output (``outs``, ``metrics``, ``plots``)
-that a lock records for a stage of ``dvc.yaml`` at the repository root or of
-``<folder>/dvc.yaml`` one level below it. Paths in a lock are relative to the stage's working
-directory (``wdir`` in its dvc.yaml, else the dvc.yaml's folder). Nothing here imports DVC:
-the locks are plain YAML.
+that a lock records for a stage of ``dvc.yaml`` at the repository root or of a ``dvc.yaml``
+one or two folders below it (``suite/dvc.yaml``, ``suite/scaling/dvc.yaml``). Paths in a lock
+are relative to the stage's working directory (``wdir`` in its dvc.yaml, else the dvc.yaml's
+folder). Nothing here imports DVC: the locks are plain YAML.
 
 A stage runs in the pipeline of its params file's folder (:func:`use_pipeline`): its default
 paths lie where that pipeline's dvc.yaml keeps them (:func:`layout_roots`), and a path that
@@ -64,11 +64,17 @@ def _stages(path: Path) -> dict[str, dict]:
     return {str(name): body for name, body in stages.items() if isinstance(body, dict)}
 
 
+def _body(stage: dict) -> dict:
+    """A dvc.yaml stage's body: the ``do`` of a ``foreach`` stage, else the stage itself."""
+    do = stage.get("do")
+    return do if "foreach" in stage and isinstance(do, dict) else stage
+
+
 def _lock_outputs(root: Path, dvc_file: Path) -> dict[Path, Owner]:
     """Every output the lock beside ``dvc_file`` records, as an absolute path, with its
     stage (its working directory from ``dvc_file``)."""
     dirs = {
-        name: (dvc_file.parent / str(body.get("wdir", "."))).resolve()
+        name: (dvc_file.parent / str(_body(body).get("wdir", "."))).resolve()
         for name, body in _stages(dvc_file).items()
     }
     name = dvc_file.relative_to(root).as_posix()
@@ -95,7 +101,8 @@ def _tracked(root: Path, stamp: tuple[float, ...], current: Path | None) -> dict
 
 
 def _pipeline_files(root: Path) -> list[Path]:
-    return sorted(p for p in (root / "dvc.yaml", *root.glob("*/dvc.yaml")) if p.is_file())
+    found = (root / "dvc.yaml", *root.glob("*/dvc.yaml"), *root.glob("*/*/dvc.yaml"))
+    return sorted(p for p in found if p.is_file())
 
 
 def owner(path: str | os.PathLike) -> Owner | None:
@@ -174,7 +181,8 @@ def _declared(dvc_file: Path) -> list[Path]:
     """Every output (outs, metrics, plots) that a stage of ``dvc_file`` declares, as an
     absolute normalised path (templates such as ${task} left in)."""
     found = []
-    for body in _stages(dvc_file).values():
+    for stage in _stages(dvc_file).values():
+        body = _body(stage)
         wdir = dvc_file.parent / str(body.get("wdir", "."))
         for key in ("outs", "metrics", "plots"):
             for out in body.get(key) or ():

@@ -400,18 +400,50 @@ def rollout_plan(
     ]
 
 
-def evaluate_checkpoints(
-    job: EvalJob,
-    checkpoints: Checkpoints,
-    seeds: Sequence[int],
-    executor: Executor,
-    label: str,
-) -> tuple[dict[int, list[tuple[int, float]]], float]:
-    """Roll out every checkpoint from every seed (:func:`evaluate_policies`, each checkpoint
-    loaded by ``job.load_policy`` from its path). Returns the success rates [%], training
-    seed -> [(epoch, rate)] in epoch order, and the wall time [s]."""
+@dataclass(frozen=True)
+class EvaluateJob:
+    """One evaluate run, checked (mimicgen_pipe.stages.evaluate.resolve): the checkpoints
+    ``checkpoints`` of the policy directory ``policies`` (trained on ``data``), each loaded
+    and checked, rolled out with arm ``robot`` on task ``task`` of back end ``backend`` in
+    reset variant ``variant``, one episode from each of ``seeds``. ``rollouts`` is what every
+    worker of ``executor`` is sent; ``inputs`` what the policy reads, key -> (shape, dtype);
+    ``evaluate`` the evaluate params. Written as the success rate per checkpoint ``plot``
+    (CSV) and the metrics JSON ``metrics_path``."""
+
+    task: str
+    backend: str
+    robot: str
+    data: str
+    variant: str
+    policies: Path
+    checkpoints: Checkpoints
+    inputs: Mapping[str, tuple[Sequence[int], str]]
+    seeds: tuple[int, ...]
+    evaluate: EvaluateParams
+    executor: Executor
+    rollouts: EvalJob
+    metrics_path: Path
+    plot: Path
+
+    @property
+    def label(self) -> str:
+        """The run's name in its messages and progress bar."""
+        return f"evaluate {self.data}_on_{self.variant}"
+
+    def plan(self) -> list[str]:
+        """The lines printed before the rollouts (:func:`rollout_plan`)."""
+        c, e = self.checkpoints, self.evaluate
+        return rollout_plan(self.label, self.inputs, c.cameras, c.image_size, len(c.paths),
+                            e.episodes, self.rollouts.horizon, e.workers, "checkpoint")  # fmt: skip
+
+
+def evaluate_checkpoints(job: EvaluateJob) -> tuple[dict[int, list[tuple[int, float]]], float]:
+    """Roll out every checkpoint of ``job`` from every seed (:func:`evaluate_policies`, each
+    checkpoint loaded by ``job.rollouts.load_policy`` from its path). Returns the success
+    rates [%], training seed -> [(epoch, rate)] in epoch order, and the wall time [s]."""
+    checkpoints = job.checkpoints
     rollouts, wall = evaluate_policies(
-        job, [str(c) for c in checkpoints.paths], seeds, executor, label
+        job.rollouts, [str(c) for c in checkpoints.paths], job.seeds, job.executor, job.label
     )
     per_run = {
         seed: [(checkpoints.epochs[c], success_rate(rollouts[str(c)])) for c in ckpts]
@@ -420,18 +452,17 @@ def evaluate_checkpoints(
     return per_run, wall
 
 
-def run_metrics(
-    checkpoints: Checkpoints, params: EvaluateParams, horizon: int, wall: float
-) -> dict[str, Any]:
+def run_metrics(job: EvaluateJob, wall: float) -> dict[str, Any]:
     """How an evaluation ran, for its metrics: the training data's generate run, episodes,
     checkpoint rate, horizon [steps], wall time [s] and per episode, workers and executor;
     for an image policy, its cameras and image size [px] (low-dim policies' metrics keep
     their keys)."""
+    checkpoints, params = job.checkpoints, job.evaluate
     out: dict[str, Any] = {
         "data_run_id": checkpoints.data_run_id,
         "episodes": params.episodes,
         "every_epochs": params.every_epochs,
-        "horizon": horizon,
+        "horizon": job.rollouts.horizon,
         "wall_seconds": wall,
         "seconds_per_episode": wall / (len(checkpoints.paths) * params.episodes),
         "workers": params.workers,
@@ -440,6 +471,70 @@ def run_metrics(
     if checkpoints.cameras and checkpoints.image_size is not None:
         out |= {"cameras": list(checkpoints.cameras), "image_size": list(checkpoints.image_size)}
     return out
+
+
+@dataclass(frozen=True)
+class EvaluateExternalJob:
+    """One evaluate_external run, checked (mimicgen_pipe.stages.evaluate_external.resolve):
+    the checkpoints ``checkpoints`` of one training run elsewhere, in training order, of
+    format ``policy_format`` (robomimic, LeRobot; trained on our export of ``data``), each
+    probed by its server, rolled out with arm ``robot`` on task ``task`` of back end
+    ``backend`` in reset variant ``variant``, one episode from each of ``seeds``. Checkpoint
+    i is served as ``names[i]``, its rollouts sent to every worker of ``executor`` as
+    ``rollouts[i]``; ``epochs[i]``, how far its training had got (in ``epoch_unit``; None
+    where its path does not say). What the first reads: ``inputs``, key -> (shape, dtype),
+    of them the ``cameras`` rendered at ``size`` (height, width) [px]. ``policy_sha256``:
+    the last checkpoint's digest; ``evaluate``: the evaluate params. Written as one row per
+    episode ``plot`` (CSV) and the metrics JSON ``metrics_path``."""
+
+    task: str
+    backend: str
+    robot: str
+    data: str
+    variant: str
+    policy_format: str
+    checkpoints: tuple[Path, ...]
+    names: tuple[str, ...]
+    rollouts: tuple[EvalJob, ...]
+    epochs: tuple[int | None, ...]
+    epoch_unit: str
+    inputs: Mapping[str, tuple[Sequence[int], str]]
+    cameras: tuple[str, ...]
+    size: tuple[int, int] | None
+    policy_sha256: str
+    seeds: tuple[int, ...]
+    evaluate: EvaluateParams
+    executor: Executor
+    metrics_path: Path
+    plot: Path
+
+    @property
+    def label(self) -> str:
+        """The run's name in its messages and progress bars."""
+        return f"evaluate {self.data}_on_{self.variant}_{self.policy_format}"
+
+    @property
+    def horizon(self) -> int:
+        return self.rollouts[0].horizon
+
+    def plan(self) -> list[str]:
+        """The lines printed before the rollouts (:func:`rollout_plan`)."""
+        episodes = len(self.seeds) * len(self.checkpoints)
+        return rollout_plan(self.label, self.inputs, self.cameras, self.size, 1, episodes,
+                            self.horizon, self.evaluate.workers)  # fmt: skip
+
+
+def evaluate_external(
+    job: EvaluateExternalJob,
+) -> tuple[list[tuple[int | None, list[Rollout]]], float]:
+    """Each checkpoint of ``job`` rolled out from its seeds, in training order
+    (:func:`evaluate_policies`): (its epoch, its rollouts) each, and the wall time [s]."""
+    results, wall = [], 0.0
+    for name, rollouts, epoch in zip(job.names, job.rollouts, job.epochs, strict=True):
+        done, seconds = evaluate_policies(rollouts, [name], job.seeds, job.executor, job.label)
+        results.append((epoch, done[name]))
+        wall += seconds
+    return results, wall
 
 
 def success_rate(rollouts: Sequence[Rollout]) -> float:

@@ -618,6 +618,8 @@ def policy_training(params: Params, name: str, store: Path) -> PolicyTraining:
             # the generate run whose data this is (none for source demos): the report checks it
             "data_run_id": data.attrs.get("run_id"),
             "control_mode": data.attrs.get("control_mode"),
+            # the task version the data was made with (none: version 1)
+            **{k: v for k, v in data.attrs.items() if k == "task_version"},
             "train_episodes": int(data.train.n_episodes),
             "val_episodes": int(data.val.n_episodes),
             "train_params": training_params(train),
@@ -625,31 +627,56 @@ def policy_training(params: Params, name: str, store: Path) -> PolicyTraining:
     )
 
 
-def train_policies(
-    trainings: Sequence[PolicyTraining],
-    directories: Sequence[Path],
-    seeds: Sequence[int],
-    workers: int,
-    threads: int,
-) -> list[list[dict[str, float]]]:
-    """Train every policy from every seed of ``seeds`` (:func:`run_trainings`: ``workers``
-    trainings side by side, ``threads`` torch threads each) and write each policy's
-    checkpoints into its policy directory of ``directories`` (:func:`checkpoint_path`).
-    Returns each policy's training curve: one row per (seed, epoch), the seed and then
-    :func:`train_policy`'s row. An Interrupted on the way up says how many trainings
-    finished."""
+@dataclass(frozen=True)
+class PolicyToTrain:
+    """One policy the train stage trains: on ``data`` read from ``store``, written to ``out``
+    (checkpoints), ``metrics`` and ``plot`` (training curve)."""
+
+    data: str
+    store: Path
+    out: Path
+    metrics: Path
+    plot: Path
+    num_demos: int  # the first N kept demos of a generated store (not used for "source")
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """One train run, checked (mimicgen_pipe.stages.train.resolve): each policy of
+    ``policies`` (on task ``task`` of back end ``backend``) trained as its training of
+    ``trainings`` says (its store read and checked), from every training seed of the active
+    profile of ``train``, ``side_by_side`` trainings at a time."""
+
+    task: str
+    backend: str
+    train: TrainParams
+    policies: tuple[PolicyToTrain, ...]
+    trainings: tuple[PolicyTraining, ...]
+    side_by_side: int
+
+
+def train_policies(job: TrainJob, directories: Sequence[Path]) -> list[list[dict[str, float]]]:
+    """Train every policy of ``job`` from every training seed (:func:`run_trainings`: the
+    job's ``side_by_side`` trainings at a time, the profile's torch threads each) and write
+    each policy's checkpoints into its policy directory of ``directories``
+    (:func:`checkpoint_path`). Returns each policy's training curve: one row per (seed,
+    epoch), the seed and then :func:`train_policy`'s row. An Interrupted on the way up says
+    how many trainings finished."""
+    trainings, prof = job.trainings, job.train.active
     runs: list[TrainingRun] = []
     owners: list[int] = []  # the policy each run trains
     for k, training in enumerate(trainings):
         data = training.data
-        for seed in seeds:
+        for seed in prof.seeds:
             label = f"train {training.name} seed {seed}"
             runs.append(TrainingRun(data.train, data.val, training.config, seed, label, len(runs)))
             owners.append(k)
     # the stacked network is the LSTM's alone: image policies train one by one
     image = bool(runs[0].config.policy.image_keys)
     on_gpu = torch.device(runs[0].config.device).type == "cuda" and not image
-    results = stacked_trainings(runs) if on_gpu else run_trainings(runs, workers, threads)
+    results = (
+        stacked_trainings(runs) if on_gpu else run_trainings(runs, job.side_by_side, prof.threads)
+    )
     curves: list[list[dict[str, float]]] = [[] for _ in trainings]
     finished = 0
     try:
@@ -696,6 +723,7 @@ def training_metrics(
         "epoch_seconds": [[int(r["seed"]), int(r["epoch"]), r["seconds"]] for r in curve],
         "torch_threads": prof.threads or torch.get_num_threads(),
         "trainings_side_by_side": side_by_side,
+        **{k: v for k, v in training.meta.items() if k == "task_version"},
     }
 
 

@@ -12,6 +12,7 @@ same for any number of workers; a killed run resumes from its finished blocks
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +26,14 @@ from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.core.interrupts import Interrupted
 from mimicgen_pipe.data.outputs import content_digest, run_id
 from mimicgen_pipe.data.params import Params, data_params
-from mimicgen_pipe.data.store import StoreView, StoreWriter, image_key, no_episodes, store_cameras
+from mimicgen_pipe.data.store import (
+    StoreView,
+    StoreWriter,
+    image_key,
+    no_episodes,
+    store_cameras,
+    store_writer,
+)
 from mimicgen_pipe.run.executors import Executor, map_blocks
 from mimicgen_pipe.run.resume import BadBlock, WorkDir, code_digest
 from mimicgen_pipe.run.rollout_progress import StepCounter, StepProgress
@@ -43,9 +51,10 @@ CameraCheck = Callable[[str, str, Sequence[str], str], None]
 
 
 @dataclass(frozen=True)
-class ObserveJob:
-    """What a worker needs, sent once per worker: the store whose states it renders, the
-    renderer's settings and the back end's ``make_renderer``. Image sizes in pixels."""
+class ImageJob:
+    """What a worker of an observe run needs, sent once per worker: the store whose states
+    it renders, the renderer's settings and the back end's ``make_renderer``. Image sizes in
+    pixels."""
 
     store: Path
     backend: str
@@ -108,7 +117,7 @@ class ImageBlockCodec:
     """A block's images as the plain arrays a work directory keeps, and back; accepted only
     for the block index whose steps they hold (``blocks``, the episodes' ``lengths``)."""
 
-    def __init__(self, blocks: Sequence[Sequence[int]], lengths: np.ndarray, job: ObserveJob):
+    def __init__(self, blocks: Sequence[Sequence[int]], lengths: np.ndarray, job: ImageJob):
         self.blocks, self.lengths, self.job = blocks, lengths, job
 
     def encode(self, index: int, result: BlockImages) -> dict[str, np.ndarray]:
@@ -128,10 +137,10 @@ class ImageBlockCodec:
         return {k: arrays[k] for k in arrays}
 
 
-_WORKER: tuple[ObserveJob, Renderer, StoreView, StepCounter | None] | None = None
+_WORKER: tuple[ImageJob, Renderer, StoreView, StepCounter | None] | None = None
 
 
-def _init_worker(job: ObserveJob) -> None:
+def _init_worker(job: ImageJob) -> None:
     global _WORKER
     from mimicgen_pipe.data.store import open_store
 
@@ -172,7 +181,7 @@ def open_work_dir(out: Path, run: str, codec: ImageBlockCodec) -> WorkDir:
 
 
 def render_blocks(
-    job: ObserveJob,
+    job: ImageJob,
     blocks: Sequence[list[int]],
     executor: Executor,
     work: WorkDir | None = None,
@@ -185,7 +194,7 @@ def render_blocks(
 def write_observed(
     writer: StoreWriter,
     view: StoreView,
-    job: ObserveJob,
+    job: ImageJob,
     images: Iterator[BlockImages],
     blocks: Sequence[list[int]],
     progress: StepProgress,
@@ -222,7 +231,7 @@ def write_observed(
 
 def frame_progress(label: str, frames: int, workers: int) -> StepProgress:
     """The observe stage's bar of ``frames`` frames (steps) rendered, shown at once and
-    moved while the workers render (each counts its frames where :class:`ObserveJob`'s
+    moved while the workers render (each counts its frames where :class:`ImageJob`'s
     ``progress`` says): a block of episodes can take a minute. A frame is an episode of one
     step to the bar."""
     return StepProgress(label, frames, 1, workers)
@@ -244,7 +253,7 @@ def observed_attrs(
 
 def observe_metrics(
     store: Path,
-    job: ObserveJob,
+    job: ImageJob,
     frames: int,
     n_episodes: int,
     seconds: Mapping[str, float],
@@ -261,3 +270,57 @@ def observe_metrics(
         out[f"ms_per_frame_{camera}"] = round(1000 * seconds[camera] / max(1, frames), 2)
     out["image_mb_per_1000_demos"] = round(total / 2**20 * 1000 / max(1, n_episodes), 1)
     return out
+
+
+@dataclass(frozen=True)
+class ObserveJob:
+    """One observe run, checked (mimicgen_pipe.stages.observe.resolve): the first
+    ``episodes`` episodes of the store at ``store_path`` (``view``, a ``kind`` store of task
+    ``task``, variant ``variant``, recorded on back end ``backend`` with arm ``robot``),
+    pictured in blocks of episodes ``blocks`` by ``workers`` local workers, each sent
+    ``images``; written beside a copy of their arrays as the observed store ``out`` with
+    attributes ``attrs`` (:func:`observed_attrs`) under run id ``run_id``
+    (:func:`observe_run_id`), and the metrics JSON ``metrics_path``."""
+
+    task: str
+    variant: str
+    backend: str
+    robot: str
+    kind: str
+    store_path: Path
+    view: StoreView
+    episodes: int
+    images: ImageJob
+    blocks: list[list[int]]
+    workers: int
+    run_id: str
+    attrs: Mapping[str, Any]
+    out: Path
+    metrics_path: Path
+
+    @property
+    def frames(self) -> int:
+        """The steps pictured (a frame per step, of each camera)."""
+        return int(self.view.episode_ends[self.episodes - 1]) if self.episodes else 0
+
+    @property
+    def label(self) -> str:
+        """The name of the run's progress bar."""
+        return f"observe {self.task} {self.variant}"
+
+
+def observe(
+    job: ObserveJob, out_dir: Path, work: WorkDir, progress: StepProgress
+) -> dict[str, float]:
+    """The job's observed store written at ``out_dir`` (the temporary of its ``out``): its
+    blocks of episodes pictured by the workers (finished blocks saved in and reused from
+    ``work``, the bar ``progress`` moved as they render), then written in order
+    (:func:`write_observed`). Returns the seconds spent per camera."""
+    rendering = dataclasses.replace(job.images, progress=progress.directory)
+    images = render_blocks(rendering, job.blocks, Executor("local", job.workers), work)
+    try:
+        ends = job.view.episode_ends[: job.episodes]
+        with store_writer(out_dir, job.kind, ends, job.attrs) as writer:
+            return write_observed(writer, job.view, job.images, images, job.blocks, progress, work)
+    finally:
+        images.close()

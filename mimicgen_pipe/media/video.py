@@ -1,15 +1,18 @@
-"""Videos of stored episodes: captions, MP4 and GIF writing. Frames are (H, W, 3) uint8 RGB,
-rendered by a back end's renderer (mimicgen_pipe.core.contracts.Renderer)."""
+"""Videos of stored episodes (the render stage): captions, MP4 and GIF writing. Frames are
+(H, W, 3) uint8 RGB, rendered by a back end's renderer (mimicgen_pipe.core.contracts.Renderer)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 from tqdm import tqdm
 
+from mimicgen_pipe.core.contracts import Renderer
 from mimicgen_pipe.core.taskspec import SubtaskSpec
 from mimicgen_pipe.data.store import EpisodeStore
 from mimicgen_pipe.method.segments import subtask_at_steps
@@ -112,3 +115,51 @@ def write_gif(path: Path, frames: Sequence[np.ndarray], fps: int, width: int = 2
         path, save_all=True, append_images=images[1:], duration=round(2000 / fps), loop=0,
         optimize=True,
     )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """One render run, checked (mimicgen_pipe.stages.render.resolve): the first ``episodes``
+    episodes of each of ``stores`` (kind -> the store, read whole: the kept "generated" one
+    and the "failed" one of one generate run of ``variant`` of task ``task`` on back end
+    ``backend`` with arm ``robot``, whose subtasks are ``subtasks``), replayed from their
+    stored states by a renderer of ``make_renderer``, as captioned MP4s at ``fps`` [Hz] (and
+    a GIF of each first one) in the media directory ``out``; their frame count goes into the
+    metrics JSON ``metrics_path``."""
+
+    task: str
+    variant: str
+    backend: str
+    robot: str
+    subtasks: tuple[SubtaskSpec, ...]
+    stores: Mapping[str, EpisodeStore]
+    episodes: int
+    fps: int
+    make_renderer: Callable[[], Renderer]
+    out: Path
+    metrics_path: Path
+
+
+def render_videos(job: RenderJob, out_dir: Path) -> tuple[int, float]:
+    """The job's videos, ``kept_<i>`` and ``failed_<i>``, written into the new directory
+    ``out_dir`` (the temporary of the job's ``out``); returns the frames rendered and the
+    seconds spent on them."""
+    renderer = job.make_renderer()
+    out_dir.mkdir()
+    frames_total, seconds = 0, 0.0
+    for kind, store in job.stores.items():
+        name = "kept" if kind == "generated" else "failed"
+        for i in range(min(job.episodes, store.n_episodes)):
+            t0 = time.perf_counter()
+            title = f"{job.task} {job.variant} {name} #{i}"
+            ok, label = kind == "generated", f"render: {name} {i}"
+            frames = episode_frames(renderer.frame, store, i, job.subtasks, title, ok, label)
+            seconds += time.perf_counter() - t0
+            frames_total += len(frames)
+            video = f"{name}_{i}.mp4"
+            write_mp4(out_dir / video, frames, job.fps)
+            if i == 0:
+                write_gif(out_dir / f"{name}_{i}.gif", frames, job.fps)
+            print(f"render: {name} episode {i} ({len(frames)} frames) -> {job.out / video}")
+    renderer.close()
+    return frames_total, seconds

@@ -282,3 +282,50 @@ def write_table(path: str | Path, rows: Sequence[Mapping[str, object]]) -> Path:
         writer.writeheader()
         writer.writerows(rows)
     return tmp.replace(path)
+
+
+@dataclass(frozen=True)
+class CoverageJob:
+    """One coverage run, checked (mimicgen_pipe.stages.coverage.resolve): the initial scenes
+    of ``variant`` of ``task`` that generate run ``run_id`` (on ``backend`` with ``robot``)
+    kept, ``kept``, and attempted, kept or failed, ``attempted``: (E, n_objects, 4, 4)
+    initial poses of ``objects``, world frame [m], binned in ``bins`` bins per dimension
+    over the variant's reset ``bounds``. Read from the kept store ``kept_path`` and the
+    failed store ``failed_path``; written as the metrics JSON ``metrics_path``, the per-bin
+    counts ``table`` (CSV) and the heat maps ``heatmap`` (PNG)."""
+
+    task: str
+    variant: str
+    backend: str
+    robot: str | None
+    run_id: str | None
+    objects: tuple[str, ...]
+    bounds: tuple[ObjectBounds, ...]
+    bins: int
+    kept: np.ndarray
+    attempted: np.ndarray
+    kept_path: Path
+    failed_path: Path
+    metrics_path: Path
+    table: Path
+    heatmap: Path
+
+
+def measure_coverage(job: CoverageJob) -> tuple[Coverage, Coverage]:
+    """The support coverage of the job's generated (kept) and attempted initial scenes;
+    writes the per-bin counts and the heat maps."""
+    generated = support_coverage(job.kept, job.bounds, job.bins)
+    attempted = support_coverage(job.attempted, job.bounds, job.bins)
+    write_table(job.table, bin_table(job.objects, job.bounds, generated, attempted))
+    plot_heatmaps(
+        job.heatmap,
+        f"{job.task} {job.variant}: initial object positions ({job.bins} coverage bins per "
+        f"dimension, edges in white)\njoint support coverage {generated.joint_coverage:.1f}% "
+        f"generated, {attempted.joint_coverage:.1f}% attempted",
+        job.objects,
+        job.bounds,
+        job.kept,
+        job.attempted,
+        job.bins,
+    )
+    return generated, attempted

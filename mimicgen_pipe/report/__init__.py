@@ -12,19 +12,23 @@ over training, robot transfer, ablations, videos), :func:`build_suite_report`, t
 suite's, and :func:`build_transit_report`, linear vs planned transit's. Each is a list of
 blocks (mimicgen_pipe.report.blocks) rendered as Markdown and HTML. The default pipeline's
 report comes with its figures of the policies over training (mimicgen_pipe.report.curves)
-and its headline numbers (mimicgen_pipe.report.summary).
+and its headline numbers (mimicgen_pipe.report.summary). The report stage composes one into
+a :class:`ReportJob` before anything is written, and :func:`write_report` writes it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 
 from mimicgen_pipe.core.taskspec import TaskSpec
 from mimicgen_pipe.data.layout import MEDIA
+from mimicgen_pipe.data.metrics import write_metrics
 from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report import method, suite
 from mimicgen_pipe.report.ablations import ablation_blocks, suite_ablation_blocks
-from mimicgen_pipe.report.blocks import Block
+from mimicgen_pipe.report.blocks import Block, render_html, render_markdown
 from mimicgen_pipe.report.curves import curve_blocks
 from mimicgen_pipe.report.inputs import Media, MetricsSet, Run
 from mimicgen_pipe.report.outside import outside_learner_blocks
@@ -32,6 +36,7 @@ from mimicgen_pipe.report.paper import PaperResults
 from mimicgen_pipe.report.profiles import profile_blocks
 from mimicgen_pipe.report.scaling import scaling_blocks
 from mimicgen_pipe.report.settings import method_settings
+from mimicgen_pipe.report.summary import SUMMARY
 from mimicgen_pipe.report.transfer import (
     transfer_blocks,
     transfer_policy_blocks,
@@ -79,31 +84,32 @@ def build_suite_report(
     paper: PaperResults,
     scaling_ms: MetricsSet,
     figures: Mapping[str, bytes],
-    profiles: tuple[Sequence[TaskSpec], Mapping[str, MetricsSet]],
+    profiles: tuple[Sequence[TaskSpec], Mapping[str, MetricsSet], Mapping[str, Mapping[str, str]]],
     robomimic: MetricsSet,
 ) -> list[Block]:
     """The task suite's report (params suite.*). ``specs``: the suite's tasks; ``ms``: its
     metrics folder; ``ablations``: task -> its saved ablation runs; ``scaling_ms``: the
     dataset-size comparison's metrics folder, ``figures``: its figure where drawn
-    (mimicgen_pipe.report.scaling); ``profiles``: the tasks, and run -> metrics folder, of
-    D0 policies under other training profiles (mimicgen_pipe.report.profiles);
+    (mimicgen_pipe.report.scaling); ``profiles``: the tasks, run -> metrics folder and
+    run -> how it was made, of D0 policies under other training profiles, made outside the
+    pipeline and shown last (mimicgen_pipe.report.profiles);
     ``robomimic``: the outside learner's metrics folder (mimicgen_pipe.report.outside)."""
     blocks = [
         *suite.intro_blocks(specs),
         *suite.suite_dgr_blocks(params, specs, ms, paper),
         *suite.object_transfer_blocks(params, specs, ms, paper),
         *suite.suite_policy_blocks(params, specs, ms, paper),
-        *suite.paper_geometry_blocks(params, specs, ms, paper, profiles[1]),
-        *profile_blocks(params, *profiles, paper),
+        *suite.paper_geometry_blocks(params, specs, ms, paper),
         *outside_learner_blocks(params, specs, ms, robomimic, paper),
         *suite.long_task_blocks(params, specs, ms, paper),
         *suite.two_arm_blocks(params, specs, ms),
         *scaling_blocks(params, scaling_ms, figures),
     ]
+    # what no stage makes comes last, each section saying so
     for spec in specs:
         if ablations.get(spec.name):
             blocks += suite_ablation_blocks(spec.name, spec.paper_task, ablations[spec.name], paper)
-    return blocks
+    return blocks + profile_blocks(params, profiles[0], profiles[1], paper, profiles[2])
 
 
 def build_transfer_report(
@@ -122,3 +128,34 @@ def build_transfer_report(
 def build_transit_report(params: Params, ms: MetricsSet) -> list[Block]:
     """The transit pipeline's report (params planned_transit.*): ``ms``, its metrics folder."""
     return transit_blocks(params, ms)
+
+
+@dataclass(frozen=True)
+class ReportJob:
+    """One report, composed from its inputs (mimicgen_pipe.stages.report.resolve): its
+    ``blocks`` under ``title``, the images its HTML embeds (``images``: path in the report
+    -> PNG bytes), the ``figures`` written beside it (file name -> PNG bytes) and its
+    headline numbers ``summary`` (None: none), made from ``metrics_files`` metrics files of
+    the folder ``metrics_dir`` (with the heat maps and curves of ``plots_dir``) and
+    ``ablation_runs`` saved ablation runs; written as the report folder ``out``."""
+
+    title: str
+    blocks: tuple[Block, ...]
+    images: Mapping[str, bytes]
+    figures: Mapping[str, bytes]
+    summary: Mapping[str, float] | None
+    metrics_files: int
+    ablation_runs: int
+    metrics_dir: Path
+    plots_dir: Path
+    out: Path
+
+
+def write_report(job: ReportJob, folder: Path) -> None:
+    """The job's report.md, report.html, figures and summary.json, into ``folder``."""
+    (folder / "report.md").write_text(render_markdown(job.blocks))
+    (folder / "report.html").write_text(render_html(job.blocks, job.images, job.title))
+    for name, data in job.figures.items():
+        (folder / name).write_bytes(data)
+    if job.summary is not None:
+        write_metrics(folder / SUMMARY, job.summary)

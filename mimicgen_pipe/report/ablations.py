@@ -23,6 +23,13 @@ from mimicgen_pipe.report.inputs import OTHER_RUN, Run, of_other_run, other_run_
 from mimicgen_pipe.report.paper import METRIC_LABELS, PaperResults, paper_deltas
 from mimicgen_pipe.report.settings import changed_settings, method_settings
 
+# what the sections of saved runs say first: no stage makes them
+MADE_BY_HAND = (
+    "`benchmarks/ablations.py` made these runs by hand, outside the pipeline (each run's params "
+    "and metrics under `ablations/<run>/` of the metrics folder): `dvc repro` neither remakes "
+    "nor checks them."
+)
+
 
 def ablation_blocks(
     task: str,
@@ -30,7 +37,7 @@ def ablation_blocks(
     settings: Mapping[str, Any],
     ablations: Sequence[Run],
     paper: PaperResults,
-    heading: str = "Ablations",
+    heading: str = "Made outside the pipeline: ablations",
     base_settings_are: str = "this run's",
 ) -> list[Block]:
     """Every saved run of ``task`` (its params' task) against the one with ``settings``; no
@@ -38,7 +45,7 @@ def ablation_blocks(
     ablations = [r for r in ablations if r.params.task == task]
     if not ablations:
         return []
-    blocks: list[Block] = [Heading(2, heading)]
+    blocks: list[Block] = [Heading(2, heading), Text(MADE_BY_HAND)]
     runs = [(r, method_settings(r.params)) for r in ablations]
     base = [(r, s) for r, s in runs if not changed_settings(settings, s)]
     if not base:
@@ -186,11 +193,12 @@ def suite_ablation_blocks(
     one of them named ``default``, whose settings are the base (they may differ from
     params.yaml's, e.g. a lower action noise)."""
     base = next((r for r in runs if r.name == "default"), None)
-    heading = f"Ablations on {task} ({paper_task})"
+    heading = f"Made outside the pipeline: ablations on {task} ({paper_task})"
     if base is None:
         names = ", ".join(r.name for r in runs) or "none"
         return [
             Heading(2, heading),
+            Text(MADE_BY_HAND),
             Text(f"No saved run named `default` to compare with: {MISSING} (runs: {names})."),
         ]
     return ablation_blocks(

@@ -214,3 +214,19 @@ def render(rows: Sequence[Sequence[str]], width: int = 120) -> str:
             out.append("  ".join(cells).rstrip())
         out.append("")
     return "\n".join(out).rstrip() + "\n"
+
+
+@dataclass(frozen=True)
+class CompareJob:
+    """A comparison, its runs read and chosen (the compare stage): ``runs`` side by side,
+    with every params key (``all_params``) or the changed ones, fitted to ``width``
+    characters."""
+
+    runs: tuple[Column, ...]
+    all_params: bool
+    width: int
+
+
+def comparison(job: CompareJob) -> str:
+    """The job's comparison as aligned text (:func:`table`, :func:`render`)."""
+    return render(table(job.runs, job.all_params), job.width)

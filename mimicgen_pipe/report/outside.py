@@ -1,5 +1,5 @@
 """The suite's outside learner: robomimic 0.3.0's own BC-RNN trained on the same D0 demos as
-our learner (suite.robomimic_tasks; suite/dvc.yaml's *_suite_robomimic stages), with its
+our learner (suite.robomimic_tasks; suite/robomimic/dvc.yaml), with its
 observations as stored and normalized, beside our own D0 policy and Table P.1. Its metrics
 live in their own folder, ROBOMIMIC under the suite's metrics: train and evaluate metrics
 named ``<stage>_<task>_D0[_on_D0]_<obs>.json``, obs one of OBS."""

@@ -4,7 +4,10 @@ profile with 3 seeds, the paper's profile trained on a GPU by scripts/paper_prof
 generated for another arm), beside Tables P.1 and E.3. Each run's metrics live in their own
 folder, PROFILES/<run> under the suite's metrics, as train and evaluate metrics of data D0
 or D1 (evaluated in the same variant); a train metric of a GPU run also says its device,
-matmul precision, epochs reached and the precision its weights came back in."""
+matmul precision, epochs reached and the precision its weights came back in. None of these
+runs is a pipeline stage's: MADE_BY, beside the runs' folders, says for each the commit that
+added it, where it trained and the commands that made it, and the report shows them in a
+section of their own."""
 
 from __future__ import annotations
 
@@ -12,7 +15,9 @@ from collections.abc import Mapping, Sequence
 from itertools import product
 from pathlib import Path
 
+from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.core.taskspec import TaskSpec
+from mimicgen_pipe.core.yamlfile import load_yaml
 from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.blocks import Block, Heading, Table, Text
 from mimicgen_pipe.report.fmt import MISSING, fmt, fmt_sr
@@ -21,6 +26,8 @@ from mimicgen_pipe.report.paper import PaperResults
 
 PROFILES = "profiles"  # the runs' metrics folders, in the suite's metrics folder
 VARIANTS = ("D0", "D1")  # the variants with policies (paper P.1)
+MADE_BY = "made_by.yaml"  # in PROFILES: run -> {commit, trained_on, command}
+MADE_BY_KEYS = ("commit", "trained_on", "command")
 
 
 def read_profile_runs(metrics_dir: Path) -> dict[str, MetricsSet]:
@@ -31,11 +38,27 @@ def read_profile_runs(metrics_dir: Path) -> dict[str, MetricsSet]:
     return {p.name: read_metrics_folder(p) for p in sorted(root.iterdir()) if p.is_dir()}
 
 
+def read_made_by(metrics_dir: Path) -> dict[str, dict[str, str]]:
+    """How each run was made (MADE_BY in PROFILES): run -> its MADE_BY_KEYS as text; empty
+    where there is no such file. InputError naming the file for another shape."""
+    path = metrics_dir / PROFILES / MADE_BY
+    if not path.is_file():
+        return {}
+    found = load_yaml(path, "the profile runs' provenance")
+    ok = isinstance(found, dict) and all(
+        isinstance(v, dict) and set(v) == set(MADE_BY_KEYS) for v in found.values()
+    )
+    if not ok:
+        raise InputError(f"{path}: expected run: {{{', '.join(MADE_BY_KEYS)}}} for each run")
+    return {str(run): {k: str(v[k]) for k in MADE_BY_KEYS} for run, v in found.items()}
+
+
 def profile_blocks(
     params: Params,
     specs: Sequence[TaskSpec],
     runs: Mapping[str, MetricsSet],
     paper: PaperResults,
+    made_by: Mapping[str, Mapping[str, str]] | None = None,
 ) -> list[Block]:
     """One row per (task, variant, run) with an evaluation, in that variant, of a policy on
     generated data of that variant: the demos it trained and validated on, the arm its data
@@ -90,8 +113,19 @@ def profile_blocks(
     columns = ("task", "variant", "run", "demos", "arm", "profile (trained on)", "hidden",
                "epochs", "seeds", "checkpoints per seed", "horizon", "generated SR max", "SR last",
                "paper (P.1, generated data)")  # fmt: skip
+    made_by = made_by or {}
+    provenance = tuple(
+        (f"`{run}`", *(made_by.get(run, {}).get(k, "not recorded") for k in MADE_BY_KEYS))
+        for run in runs
+    )
     return [
-        Heading(2, "Task suite: policies by training profile (%)"),
+        Heading(2, "Made outside the pipeline: policies by training profile (%)"),
+        Text(
+            "No stage of this pipeline makes these rows: each run was made by hand, on the "
+            "machine and with the commands the second table names "
+            f"(`suite/metrics/{PROFILES}/{MADE_BY}`), and `dvc repro` neither remakes nor "
+            "checks them. The GPU runs are not bit-reproducible."
+        ),
         Text(
             "BC-RNN on generated demos of a variant (1000: the suite's policy data; the "
             "default pipeline's store for its task; for another arm, demos generated for it "
@@ -107,6 +141,7 @@ def profile_blocks(
             "float16."
         ),
         Table(columns, tuple(rows)),
+        Table(("run", "commit", "trained on", "made with"), provenance),
     ]
 
 

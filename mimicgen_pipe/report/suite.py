@@ -274,29 +274,21 @@ def paper_geometry_rows(
 
 
 def paper_geometry_blocks(
-    params: Params,
-    specs: Sequence[TaskSpec],
-    ms: MetricsSet,
-    paper: PaperResults,
-    profiles: Mapping[str, MetricsSet] | None = None,
+    params: Params, specs: Sequence[TaskSpec], ms: MetricsSet, paper: PaperResults
 ) -> list[Block]:
     """The tasks of suite.seeded_policy_tasks (the paper's own geometry) in one table
-    (:func:`paper_geometry_rows`): the suite's own policies, and those of each run of
-    ``profiles`` (run -> metrics folder, mimicgen_pipe.report.profiles: other training
-    profiles) that evaluated the task on D0."""
+    (:func:`paper_geometry_rows`) of the suite's own policies (runs made outside the
+    pipeline have a section of their own, mimicgen_pipe.report.profiles)."""
     seeded = [s for s in specs if s.name in params.suite.seeded_policy_tasks]
     if not seeded:
         return []
     rows = []
     for spec in seeded:
         dgr = [dgr_run(ms, params, spec.name, v) for v in ("D0", "D1")]
-        runs = [(f"`{params.train.profile}` (the suite's)", ms)] + [
-            (f"`{run}`", folder) for run, folder in sorted((profiles or {}).items())
-        ]
-        evs = [(label, evaluation(f, params, spec.name, params.suite.backend, "D0", "D0"))
-               for label, f in runs]  # fmt: skip
-        evs = evs[:1] + [(label, ev) for label, ev in evs[1:] if ev is not None]
-        rows += paper_geometry_rows(spec, dgr, evs, paper)
+        ev = evaluation(ms, params, spec.name, params.suite.backend, "D0", "D0")
+        rows += paper_geometry_rows(
+            spec, dgr, [(f"`{params.train.profile}` (the suite's)", ev)], paper
+        )
     return [
         Heading(2, "The paper's own geometry"),
         Text(
@@ -305,8 +297,8 @@ def paper_geometry_blocks(
             f"and the D0 policies trained on {params.train.num_demos} generated demos with "
             f"{params.suite.policy_seeds} seeds (mean ± std of the max over training), "
             f"beside Tables O.1 and P.1. The target is P.1 − {fmt(TARGET_MARGIN)} points. "
-            "Below the suite's own policies, those of the runs under other training "
-            "profiles (the table of policies by training profile) on the same demos."
+            "Policies of other training profiles on the same demos, made outside the "
+            "pipeline, are in the report's last section."
         ),
         Table(PAPER_GEOMETRY_COLUMNS, tuple(rows)),
     ]

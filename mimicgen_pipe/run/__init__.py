@@ -1,2 +1,2 @@
-"""Running stages: the generation runner, executors (local, Ray), resumable work, the
-arithmetic pins, progress. Imports core, method and data."""
+"""Running stages: the generation runner, the parse and pose_noise stages' stores, executors
+(local, Ray), resumable work, the arithmetic pins, progress. Imports core, method and data."""

@@ -1,7 +1,8 @@
-"""Running many generation attempts, on any executor (mimicgen_pipe.run.executors): what every
-worker is sent (``AttemptJob``), the loop (``generate``), and what it writes
-(``write_generated``). The generate stage resolves its request into these, checked, once
-(mimicgen_pipe/stages/generate_job.py); nothing here reads params or the command line.
+"""Running many generation attempts, on any executor (mimicgen_pipe.run.executors): a generate
+run (``GenerateJob``), what every worker is sent (``AttemptJob``), the loop (``generate``),
+and what it writes (``write_generated``). The generate stage resolves its request into a
+job, checked, once (mimicgen_pipe.stages.generate.resolve); nothing here reads params or the
+command line.
 
 Every attempt's seed is derived from (stage seed, variant, attempt index), and results are
 consumed in attempt order. A simulator carries history from one episode to the next (PhysX
@@ -19,16 +20,16 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast, overload
+from typing import TYPE_CHECKING, Any, cast, overload
 
 import numpy as np
 from tqdm import tqdm
 
-from mimicgen_pipe.core.contracts import BatchEnv, Env
+from mimicgen_pipe.core.contracts import Backend, BatchEnv, Env
 from mimicgen_pipe.core.errors import InputError, StageError
 from mimicgen_pipe.core.interrupts import Interrupted
 from mimicgen_pipe.core.taskspec import ARM, TaskSpec, arm_key
-from mimicgen_pipe.data.metrics import generation_metrics
+from mimicgen_pipe.data.metrics import GENERATE_PURPOSE, generation_metrics, metrics_identity
 from mimicgen_pipe.data.store import EpisodeStore, write_store
 from mimicgen_pipe.method.batched import run_batched
 from mimicgen_pipe.method.generation import (
@@ -40,6 +41,9 @@ from mimicgen_pipe.method.generation import (
 )
 from mimicgen_pipe.run.executors import Executor, map_blocks
 from mimicgen_pipe.run.resume import BadBlock, WorkDir, code_digest
+
+if TYPE_CHECKING:  # a job holds the generate params; the runner reads no params file
+    from mimicgen_pipe.data.params import GenerateParams
 
 ATTEMPTS_PER_BLOCK = 16  # rebuilding a ManiSkill scene costs ~0.1 s, ~3% of a block
 
@@ -98,6 +102,74 @@ class AttemptJob:
     def block_size(self) -> int:
         """Attempts per block: ATTEMPTS_PER_BLOCK for each scene a worker steps."""
         return ATTEMPTS_PER_BLOCK * self.num_envs
+
+
+@dataclass(frozen=True)
+class GenerateJob:
+    """One generate run, checked (mimicgen_pipe.stages.generate.resolve): ``variant`` of task
+    ``spec`` on ``backend`` (the back end's package, contracts.Backend; ``backend_name`` its
+    name in params), as ``generate`` says: the generate params in effect, the command line's
+    options in place of their keys and action_noise capped at the task's max_action_noise,
+    ``note`` the line that says so (None when uncapped). It reads the parsed store at
+    ``parsed_path`` and writes the kept store ``out``, the failed store ``failed_out`` and
+    the metrics JSON ``metrics_path``, under run id ``run_id``; ``attrs``, the kept and
+    failed stores' attributes. ``attempts`` is what every worker of ``executor`` is sent
+    (envs, batches, source demos, the engine's config); ``seeds`` the reset seeds of every
+    attempt it may run, in order."""
+
+    spec: TaskSpec
+    backend_name: str
+    backend: Backend
+    variant: str
+    generate: GenerateParams
+    note: str | None
+    parsed_path: Path
+    out: Path
+    failed_out: Path
+    metrics_path: Path
+    executor: Executor
+    attempts: AttemptJob
+    seeds: AttemptSeeds
+    run_id: str
+    attrs: Mapping[str, Any]
+
+    @property
+    def robot(self) -> str:
+        """The arm generated with (generate.robot, or --robot)."""
+        return self.generate.robot
+
+    @property
+    def config(self) -> GenerationConfig:
+        """The generation engine's knobs, as every worker has them."""
+        return self.attempts.config
+
+    @property
+    def make_batch(self) -> Callable[[], BatchEnv] | None:
+        """What makes each worker's batch of generate.num_envs scenes; None: one attempt at a
+        time on an env of ``attempts.make_env``."""
+        return self.attempts.make_batch
+
+    @property
+    def num_demos(self) -> int | None:
+        """Demos to keep (guarantee mode); None: every attempt of ``seeds`` (fixed_attempts)."""
+        return self.generate.num_demos if self.generate.mode == "guarantee" else None
+
+    @property
+    def label(self) -> str:
+        """The name of the run's progress bar."""
+        return f"generate {self.spec.name} {self.variant}"
+
+    @property
+    def identity(self) -> dict[str, Any]:
+        """The identity fields of its metrics file (mimicgen_pipe.data.metrics)."""
+        return metrics_identity(
+            "generate",
+            self.spec.name,
+            self.backend_name,
+            self.robot,
+            variant=self.variant,
+            purpose=GENERATE_PURPOSE[self.generate.mode],
+        )
 
 
 def open_work_dir(
@@ -298,34 +370,27 @@ class AttemptTally:
     rows: list[tuple[bool, int, float, bool, bool]] = dataclasses.field(default_factory=list)
 
 
-def generate(
-    job: AttemptJob,
-    seeds: Sequence[int],
-    executor: Executor,
-    work: WorkDir | None = None,
-    num_demos: int | None = None,
-    robot: str = "panda",
-    label: str | None = None,
-) -> GenerationResult:
-    """Run attempts from ``seeds`` in order: all of them, or (``num_demos``, the paper's
-    guarantee mode) until ``num_demos`` have succeeded. ``robot``: the arm the job's env
-    has, for the messages. ``label``: the name of a progress bar of the demos (guarantee
-    mode) or attempts, none when None.
+def generate(job: GenerateJob, work: WorkDir | None = None) -> GenerationResult:
+    """Run the job's attempts from its seeds in order: all of them, or (its ``num_demos``,
+    the paper's guarantee mode) until that many have succeeded, under a progress bar of the
+    demos (guarantee mode) or attempts; with ``work`` (:func:`open_work_dir`), finished
+    blocks are saved there and those an earlier run saved are reused.
 
-    Raises RuntimeError when the first IK_ABORT_AFTER attempts all failed at IK (the arm
+    Raises InputError when the first IK_ABORT_AFTER attempts all failed at IK (the arm
     cannot reach the task) or when the seeds run out before ``num_demos`` successes; an
     Interrupted on the way up says how far the run got."""
+    seeds, num_demos = job.seeds, job.num_demos
     tally = AttemptTally()
     bar = attempts_bar(
         len(seeds) if num_demos is None else num_demos,
         "attempt" if num_demos is None else "demo",
-        label,
+        job.label,
     )
     t0 = time.perf_counter()
-    results = run_attempts(job, seeds, executor, work)
+    results = run_attempts(job.attempts, seeds, job.executor, work)
     try:
         if num_demos != 0:
-            take_attempts(results, tally, bar, num_demos, robot)
+            take_attempts(results, tally, bar, num_demos, job.robot)
     except Interrupted as exc:
         exc.detail = (
             f"after {len(tally.rows)} of {len(seeds)} attempts"
@@ -348,15 +413,15 @@ def generate(
     wall = time.perf_counter() - t0
     if num_demos is not None and len(tally.kept) < num_demos:
         too_few_demos(tally, num_demos, work)
-    return generation_result(job, tally, wall)
+    return generation_result(job.attempts, tally, wall)
 
 
-def attempts_bar(total: int, unit: str, label: str | None, **kw: Any) -> tqdm:
-    """The progress bar of a generate run: ``total`` ``unit``s (demos or attempts), none
-    when ``label`` is None. Attempts come back a block at a time, so the time left is
-    estimated from the mean rate so far, not from tqdm's moving average of the last bursts
-    (which swings from hours to 0 s); it settles after the first blocks."""
-    return tqdm(total=total, desc=label, unit=unit, disable=label is None, smoothing=0, **kw)
+def attempts_bar(total: int, unit: str, label: str, **kw: Any) -> tqdm:
+    """The progress bar ``label`` of a generate run: ``total`` ``unit``s (demos or
+    attempts). Attempts come back a block at a time, so the time left is estimated from the
+    mean rate so far, not from tqdm's moving average of the last bursts (which swings from
+    hours to 0 s); it settles after the first blocks."""
+    return tqdm(total=total, desc=label, unit=unit, smoothing=0, **kw)
 
 
 def take_attempts(

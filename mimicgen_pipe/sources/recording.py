@@ -4,8 +4,9 @@ replay succeeds, so that every kept demo is one the simulator itself reproduces.
 
 from __future__ import annotations
 
+import functools
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -15,9 +16,10 @@ from tqdm import tqdm
 
 from mimicgen_pipe.core.contracts import Env
 from mimicgen_pipe.core.errors import InputError
-from mimicgen_pipe.core.taskspec import ARM
+from mimicgen_pipe.core.taskspec import TaskSpec
 from mimicgen_pipe.data.params import SourceParams
 from mimicgen_pipe.method.generation import replay_actions
+from mimicgen_pipe.sources.source_files import Demonstrator, source_episodes
 
 # the demonstrator draws seeds until num_demos demos replay to success, at most this many
 # seeds per demo asked for (plug_charger, the hardest planner here, needs about 4.5)
@@ -61,24 +63,47 @@ class SourceRecording:
         }
 
 
-def record_source_demos(
-    env: Env,
-    objects: tuple[str, ...],
-    draw: DrawDemos,
-    source: SourceParams,
-    task: str,
-    out: Path,
-    arms: tuple[str, ...] = (ARM,),
-) -> SourceRecording:
-    """``source.num_demos`` demos of ``task`` recorded on ``env`` (its ``objects`` in this
-    order, and its ``arms``): drawn by ``draw`` from reset seeds source.seed on (or
-    source.from_file's), each replayed and kept if it succeeds; a demo that fails on replay
-    is replaced by one from the demonstrator's next seeds, up to SEEDS_PER_DEMO seeds per
-    demo wanted. ``draw`` gets a scratch directory beside ``out``, named as its
-    temporaries, so that the next run removes it if this one is killed before it can.
+@dataclass(frozen=True)
+class SourceJob:
+    """One source run, checked (mimicgen_pipe.stages.source.resolve): ``source.num_demos``
+    demos of task ``spec`` on back end ``backend`` (its name) with arm source.robot, drawn
+    from the back end's ``demonstrator`` or from source.from_file (``brought_in``: that
+    file's identity for the metrics, source_inputs.file_identity; empty for the
+    demonstrator) and recorded on an env of ``make_env``; written as the source store ``out``
+    (``data_params``: the params that shape it, recorded in its attrs) and the metrics JSON
+    ``metrics_path``."""
+
+    spec: TaskSpec
+    backend: str
+    source: SourceParams
+    make_env: Callable[[], Env]
+    demonstrator: Demonstrator
+    brought_in: Mapping[str, str]
+    data_params: Mapping[str, Any]
+    out: Path
+    metrics_path: Path
+
+    @property
+    def inputs(self) -> list[str]:
+        """The files it reads: source.from_file and the JSON beside it (none for the
+        demonstrator)."""
+        f = self.source.from_file
+        return [f, str(Path(f).with_suffix(".json"))] if f else []
+
+
+def record_source_demos(job: SourceJob, env: Env) -> SourceRecording:
+    """``source.num_demos`` demos of the job's task recorded on ``env`` (its objects in the
+    spec's order, and its arms): drawn from reset seeds source.seed on (or source.from_file's;
+    source_files.source_episodes), each replayed and kept if it succeeds; a demo that fails
+    on replay is replaced by one from the demonstrator's next seeds, up to SEEDS_PER_DEMO
+    seeds per demo wanted. The draw gets a scratch directory beside the job's ``out``, named
+    as its temporaries, so that the next run removes it if this one is killed before it can.
 
     Raises InputError when no demo succeeds on replay, or when the demonstrator gives fewer
     than source.num_demos within its seeds (a file gives what it has)."""
+    source, task, out = job.source, job.spec.name, job.out
+    objects, arms = job.spec.objects, job.spec.arms
+    draw: DrawDemos = functools.partial(source_episodes, job.backend, job.demonstrator, env)
     steps, seeds, init_poses = [], [], []
     demonstrator_failures = replay_failures = seeds_tried = 0
     while seeds_tried < SEEDS_PER_DEMO * source.num_demos:

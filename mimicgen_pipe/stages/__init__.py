@@ -1,5 +1,12 @@
 """Stage scripts: argument parsing and I/O around the layers of mimicgen_pipe. Imports any
-layer: a stage composes them."""
+layer: a stage composes them.
+
+Every stage module has one shape: ``add_arguments(p)``; ``resolve(args)``, the run its
+command line and params file ask for as a frozen job (``<Stage>Job``), every refusal raised
+there (InputError) before any output is claimed or anything written; and ``run(job)``, which
+claims the job's outputs, does the work and writes them. The command line calls
+``run(resolve(args))``. A job type lives in the library, beside the function that does its
+work, which takes it whole (docs/extending.md, "A stage")."""
 
 from __future__ import annotations
 
@@ -76,46 +83,16 @@ def episode_count(text: str) -> int:
 
 
 def check_variants(params: Params, path: str) -> None:
-    """InputError naming the params key when the main task (generate.variants), a
-    robot-transfer task (transfer.variants), a suite task (suite.variants) or the scaling
-    task (suite.scaling.variant) lacks one of the listed reset variants, or a suite task with
-    policies or the scaling task is not a suite task (or, with policies, is listed twice),
-    or a task of suite.robomimic_tasks has no D0 policy data, or a task of
-    transfer.policy_tasks is not in transfer.tasks."""
-    u = params.suite
-    seen: set[str] = set()
-    for key in ("suite.policy_tasks", "suite.d0_policy_tasks", "suite.seeded_policy_tasks"):
-        for task in getattr(u, key.split(".")[1]):
-            if task not in u.tasks or task in seen:
-                why = "not in suite.tasks" if task not in u.tasks else "listed twice"
-                raise InputError(f"{path}: {key}: {task!r} is {why}")
-            seen.add(task)
-    for task in u.robomimic_tasks:
-        if task not in seen:
-            raise InputError(f"{path}: suite.robomimic_tasks: {task!r} has no D0 policy data "
-                             "(it is in none of suite.policy_tasks, d0_policy_tasks and "
-                             "seeded_policy_tasks)")  # fmt: skip
-    scaling = u.scaling
-    if scaling.task is not None and scaling.task not in u.tasks:
-        raise InputError(f"{path}: suite.scaling.task: {scaling.task!r} is not in suite.tasks")
-    if max(scaling.num_demos) > scaling.demos:
-        raise InputError(
-            f"{path}: suite.scaling.num_demos: {max(scaling.num_demos)} is more than the "
-            f"{scaling.demos} demos of suite.scaling.demos"
-        )
-    t = params.transfer
-    for task in t.policy_tasks:
-        if task not in t.tasks:
-            raise InputError(
-                f"{path}: transfer.policy_tasks: {task!r} is not in transfer.tasks (its "
-                "policy data is generated from transfer's source demos)"
-            )
-    lists = [("generate.variants", params.backend, params.task, params.generate.variants)]
-    lists += [("transfer.variants", t.backend, task, t.variants) for task in t.tasks]
-    lists += [("suite.variants", u.backend, task, u.variants) for task in u.tasks]
-    lists += [("suite.object_transfer", u.backend, task, ["O1"]) for task in u.object_transfer]
-    if scaling.task is not None:
-        lists += [("suite.scaling.variant", u.backend, scaling.task, [scaling.variant])]
+    """InputError naming generate.variants when the main task lacks one of its reset
+    variants (the suite's and robot transfer's lists: the check stage of their pipelines)."""
+    check_variant_lists(
+        [("generate.variants", params.backend, params.task, params.generate.variants)], path
+    )
+
+
+def check_variant_lists(lists: list[tuple[str, str, str, list[str]]], path: str) -> None:
+    """InputError naming the params key of the first (key, back end, task, variants) whose
+    task lacks one of the variants."""
     for key, backend, task, variants in lists:
         spec = backends.task_spec(backend, task)
         for v in variants:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from mimicgen_pipe.core.errors import InputError, StageError
 from mimicgen_pipe.core.jsonfile import MAX_BYTES, parse_json, read_json
-from mimicgen_pipe.report.compare import PIPELINES, render, runs_of, select, table
+from mimicgen_pipe.report.compare import PIPELINES, CompareJob, comparison, runs_of, select
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -71,10 +71,15 @@ def read_shown(given: str) -> object:
         raise InputError(f"{given}: not dvc exp show --json output ({why})") from None
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> CompareJob:
+    """The runs ``args`` name, read from dvc exp show (run here, or its given output)."""
     shown = exp_show() if args.json is None else read_shown(args.json)
     pipeline = PIPELINES[args.pipeline]
     runs = select(runs_of(shown, pipeline), args.runs)
     if not runs:
         raise InputError(f"no run in dvc exp show has {pipeline.params}")
-    sys.stdout.write(render(table(runs, args.all_params), args.width))
+    return CompareJob(tuple(runs), args.all_params, args.width)
+
+
+def run(job: CompareJob) -> None:
+    sys.stdout.write(comparison(job))

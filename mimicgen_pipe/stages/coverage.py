@@ -14,12 +14,10 @@ from mimicgen_pipe.data.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.data.outputs import check_same_run, claim
 from mimicgen_pipe.data.store import read_store
 from mimicgen_pipe.method.coverage import (
-    bin_table,
+    CoverageJob,
     coverage_metrics,
-    plot_heatmaps,
+    measure_coverage,
     reset_bounds,
-    support_coverage,
-    write_table,
 )
 from mimicgen_pipe.stages import (
     add_generated_arguments,
@@ -43,9 +41,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> CoverageJob:
+    """The coverage run ``args`` ask for: the params, the variant's reset bounds, and the
+    initial scenes of the kept and failed stores of one generate run of this task and
+    variant, with at least one attempt; writes nothing."""
     params = stage_params(args)
-    bins = params.coverage.bins
     spec = backends.task_spec(params.backend, params.task)
     backends.check_variant(spec, args.variant)
     bounds = reset_bounds(spec, args.variant)
@@ -56,7 +56,6 @@ def run(args: argparse.Namespace) -> None:
     )
     table_path = output_path(args.table, layout.plot_file("coverage", params.task, args.variant))
     heatmap_path = output_path(args.heatmap, layout.heatmap_file(params.task, args.variant))
-    claim(metrics_path, table_path, heatmap_path, inputs=[kept_path, failed_path])
     n_obj = len(spec.objects)
     initial, run_ids = {}, {}
     for path, kind in ((kept_path, "generated"), (failed_path, "failed")):
@@ -73,31 +72,38 @@ def run(args: argparse.Namespace) -> None:
     attempted = np.concatenate([kept, initial[failed_path]])
     if len(attempted) == 0:
         raise InputError(f"{kept_path}: no attempts recorded (kept or failed)")
-    gen_cov = support_coverage(kept, bounds, bins)
-    att_cov = support_coverage(attempted, bounds, bins)
-    metrics = coverage_metrics(spec.objects, gen_cov, att_cov, bins)
-    write_table(table_path, bin_table(spec.objects, bounds, gen_cov, att_cov))
-    plot_heatmaps(
-        heatmap_path,
-        f"{params.task} {args.variant}: initial object positions ({bins} coverage bins per "
-        f"dimension, edges in white)\njoint support coverage {gen_cov.joint_coverage:.1f}% "
-        f"generated, {att_cov.joint_coverage:.1f}% attempted",
-        spec.objects,
-        bounds,
-        kept,
-        attempted,
-        bins,
+    return CoverageJob(
+        task=params.task,
+        variant=args.variant,
+        backend=params.backend,
+        robot=store.attrs.get("robot"),  # of the stores' one run (checked above)
+        run_id=run_ids[str(kept_path)],
+        objects=spec.objects,
+        bounds=tuple(bounds),
+        bins=params.coverage.bins,
+        kept=kept,
+        attempted=attempted,
+        kept_path=kept_path,
+        failed_path=failed_path,
+        metrics_path=metrics_path,
+        table=table_path,
+        heatmap=heatmap_path,
     )
+
+
+def run(job: CoverageJob) -> None:
+    claim(job.metrics_path, job.table, job.heatmap, inputs=[job.kept_path, job.failed_path])
+    gen_cov, att_cov = measure_coverage(job)
+    metrics = coverage_metrics(job.objects, gen_cov, att_cov, job.bins)
     # the run measured, so that the report can check it is the run generate's metrics describe
-    robot = store.attrs.get("robot")  # of the stores' one run (checked above)
     write_metrics(
-        metrics_path,
-        metrics_identity("coverage", params.task, params.backend, robot, variant=args.variant)
-        | {"run_id": run_ids[str(kept_path)], **metrics},
+        job.metrics_path,
+        metrics_identity("coverage", job.task, job.backend, job.robot, variant=job.variant)
+        | {"run_id": job.run_id, **metrics},
     )
-    per_object = ", ".join(f"{o} {metrics[f'support_coverage_{o}']:.1f}%" for o in spec.objects)
+    per_object = ", ".join(f"{o} {metrics[f'support_coverage_{o}']:.1f}%" for o in job.objects)
     print(
-        f"coverage: {params.task} {args.variant}: {gen_cov.episodes} generated of "
+        f"coverage: {job.task} {job.variant}: {gen_cov.episodes} generated of "
         f"{att_cov.episodes} attempted; joint {gen_cov.joint_coverage:.1f}% "
-        f"(attempted {att_cov.joint_coverage:.1f}%), {per_object} -> {metrics_path}"
+        f"(attempted {att_cov.joint_coverage:.1f}%), {per_object} -> {job.metrics_path}"
     )

@@ -20,11 +20,11 @@ from mimicgen_pipe.data.metrics import (
 from mimicgen_pipe.data.outputs import claim, output_set
 from mimicgen_pipe.learn.evaluation import (
     EvalJob,
+    EvaluateJob,
     checkpoints_to_evaluate,
     evaluate_checkpoints,
     evaluation_seed,
     policy_inputs,
-    rollout_plan,
     run_metrics,
 )
 from mimicgen_pipe.learn.training import load_rollout_policy
@@ -72,7 +72,10 @@ def checkpoints_made_by(data: str, policies: Path, default: bool) -> str:
     return f"; the train stage writes them: run `{command}` first"
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> EvaluateJob:
+    """The evaluate run ``args`` ask for: the params, the executor's settings, the robot,
+    every checkpoint to roll out loaded and checked, and the cameras an image policy reads;
+    writes nothing."""
     params = stage_params(args)
     spec = backends.task_spec(params.backend, params.task)
     backends.check_variant(spec, args.variant)
@@ -81,9 +84,7 @@ def run(args: argparse.Namespace) -> None:
     policies = Path(args.policies or layout.policy_dir(params.task, args.data))
     metrics_path = output_path(args.metrics, layout.metrics_file("evaluate", params.task, name))
     plot_path = output_path(args.plot, layout.plot_file("evaluate", params.task, name))
-    claim(metrics_path, plot_path, inputs=[policies])  # fails at once if another run writes them
-    executor = stage_executor(params, "evaluate")  # refuses unsafe Ray settings before any work
-
+    executor = stage_executor(params, "evaluate")  # refuses unsafe Ray settings
     # a policy acts with the arm its training data was recorded with
     robot = params.source.robot if args.data == "source" else params.generate.robot
     backends.check_robot(params.backend, robot)
@@ -92,15 +93,10 @@ def run(args: argparse.Namespace) -> None:
         policies, params.task, spec.observation_dims, params.train.obs_keys, e.every_epochs,
         checkpoints_made_by(args.data, policies, args.policies is None),
     )  # fmt: skip
-    seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)]
     # an image policy's cameras, rendered in the workers at its training size
     cameras, size = checkpoints.cameras, checkpoints.image_size
     backends.check_cameras(params.backend, robot, cameras, f"{policies}: the policy's cameras")
-    inputs = policy_inputs(checkpoints, params.train.obs_keys, spec.observation_dims)
-    for line in rollout_plan(f"evaluate {name}", inputs, cameras, size, len(checkpoints.paths),
-                             e.episodes, spec.horizon, e.workers, "checkpoint"):  # fmt: skip
-        print(line)
-    job = EvalJob(
+    rollouts = EvalJob(
         make_env=functools.partial(
             backends.make_env, params.backend, params.task, robot, params.maniskill.lean_step
         ),
@@ -111,18 +107,39 @@ def run(args: argparse.Namespace) -> None:
         arms=spec.arms,
         make_cameras=camera_renderer(params, robot, cameras, size),
     )
-    per_run, wall = evaluate_checkpoints(job, checkpoints, seeds, executor, f"evaluate {name}")
-    metrics, timings = split_timings(
-        evaluation_metrics(per_run) | run_metrics(checkpoints, e, spec.horizon, wall)
+    return EvaluateJob(
+        task=params.task,
+        backend=params.backend,
+        robot=robot,
+        data=args.data,
+        variant=args.variant,
+        policies=policies,
+        checkpoints=checkpoints,
+        inputs=policy_inputs(checkpoints, params.train.obs_keys, spec.observation_dims),
+        seeds=tuple(evaluation_seed(e.seed, args.variant, i) for i in range(e.episodes)),
+        evaluate=e,
+        executor=executor,
+        rollouts=rollouts,
+        metrics_path=metrics_path,
+        plot=plot_path,
     )
+
+
+def run(job: EvaluateJob) -> None:
+    # fails at once if another run writes them
+    claim(job.metrics_path, job.plot, inputs=[job.policies])
+    for line in job.plan():
+        print(line)
+    per_run, wall = evaluate_checkpoints(job)
+    metrics, timings = split_timings(evaluation_metrics(per_run) | run_metrics(job, wall))
     identity = metrics_identity(
-        "evaluate", params.task, params.backend, robot, variant=args.variant, data=args.data
+        "evaluate", job.task, job.backend, job.robot, variant=job.variant, data=job.data
     )
-    with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
+    with output_set(job.plot, job.metrics_path) as (tmp_plot, tmp_metrics):
         write_success_rates(tmp_plot, per_run)
         write_metrics(tmp_metrics, identity | metrics)
-    write_timings(metrics_path, identity, timings)
+    write_timings(job.metrics_path, identity, timings)
     print(
-        f"evaluate {name}: success {metrics['success_rate_max']:.1f}% (max over checkpoints), "
-        f"{metrics['success_rate_last']:.1f}% (last checkpoint) -> {metrics_path}"
+        f"{job.label}: success {metrics['success_rate_max']:.1f}% (max over checkpoints), "
+        f"{metrics['success_rate_last']:.1f}% (last checkpoint) -> {job.metrics_path}"
     )

@@ -38,13 +38,13 @@ from mimicgen_pipe.formats.external import (
 )
 from mimicgen_pipe.learn.evaluation import (
     EvalJob,
+    EvaluateExternalJob,
     Rollout,
-    evaluate_policies,
+    evaluate_external,
     evaluation_seed,
-    rollout_plan,
     success_rate,
 )
-from mimicgen_pipe.run.executors import Executor, stage_executor
+from mimicgen_pipe.run.executors import stage_executor
 from mimicgen_pipe.stages import (
     add_selection_arguments,
     camera_renderer,
@@ -112,14 +112,6 @@ def checkpoint_epoch(fmt: str, path: Path, label: str) -> tuple[int | None, str]
     return epoch, module.EPOCH_UNIT
 
 
-def print_plan(label: str, probed: Probed, episodes: int, horizon: int, workers: int) -> None:
-    """What the policy reads, the cameras rendered for it, and the work, before any rollout."""
-    inputs = {k: (v["shape"], v["dtype"]) for k, v in probed.observations.items()}
-    for line in rollout_plan(label, inputs, probed.cameras, probed.size, 1, episodes, horizon,
-                             workers):  # fmt: skip
-        print(line)
-
-
 def eval_job(
     params: Params, spec: TaskSpec, robot: str, policy: PolicySpec, variant: str, probed: Probed
 ) -> EvalJob:
@@ -152,37 +144,20 @@ def run_policies(texts: list[str]) -> tuple[str, list[Path]]:
     return fmt, [path for _, path in given]
 
 
-def roll_out(
-    params: Params,
-    spec: TaskSpec,
-    robot: str,
-    variant: str,
-    policies: list[PolicySpec],
-    seeds: list[int],
-    executor: Executor,
-    label: str,
-) -> tuple[list[tuple[int | None, list[Rollout]]], float, Probed, str]:
-    """Each checkpoint of one run rolled out in ``variant`` from ``seeds``, in order: (its
-    epoch, its rollouts) each; the wall time [s], what the first one reads, and the epoch's
-    unit."""
+def probe_policies(
+    params: Params, spec: TaskSpec, robot: str, policies: list[PolicySpec]
+) -> list[Probed]:
+    """What each policy reads, its server started and asked (formats.external.probe):
+    InputError where our env with ``robot`` cannot give it its inputs or take its actions."""
     known = backends.backend_package(params.backend).cameras(robot)
     env_kwargs = {"backend": params.backend, "task": params.task, "robot": robot}
-    results, wall = [], 0.0
-    for i, policy in enumerate(policies):
-        probed = probe(policy, spec.observation_dims, env_kwargs, known, spec.action_dim)
-        if i == 0:
-            first = probed
-            print_plan(label, probed, len(seeds) * len(policies), spec.horizon,
-                       params.evaluate.workers)  # fmt: skip
-        epoch, unit = checkpoint_epoch(policy.format, Path(policy.path), label)
-        job = eval_job(params, spec, robot, policy, variant, probed)
-        rollouts, seconds = evaluate_policies(job, [policy.name], seeds, executor, label)
-        results.append((epoch, rollouts[policy.name]))
-        wall += seconds
-    return results, wall, first, unit
+    return [probe(p, spec.observation_dims, env_kwargs, known, spec.action_dim) for p in policies]
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> EvaluateExternalJob:
+    """The evaluate_external run ``args`` ask for: the params, the checkpoints, the
+    executor's settings, the robot, the framework's Python and every checkpoint's server
+    probed; writes nothing."""
     params = stage_params(args)
     spec = backends.task_spec(params.backend, params.task)
     backends.check_variant(spec, args.variant)
@@ -192,49 +167,76 @@ def run(args: argparse.Namespace) -> None:
     episodes = e.episodes if args.episodes is None else args.episodes
     name = f"{args.data}_on_{args.variant}_{fmt}"
     default_metrics, default_plot = layout.external_evaluation_files(params.task, name)
-    metrics_path = Path(args.metrics or default_metrics)
-    plot_path = Path(args.plot or default_plot)
-    # fails at once if another run writes them
-    claim(metrics_path, plot_path, inputs=given)
-    executor = stage_executor(params, "evaluate")  # refuses unsafe Ray settings before any work
+    executor = stage_executor(params, "evaluate")  # refuses unsafe Ray settings
     # a policy acts with the arm its training data was recorded with
     robot = params.source.robot if args.data == "source" else params.generate.robot
     backends.check_robot(params.backend, robot)
     python = check_python(args.python or str(DEFAULT_PYTHON))
-    label = f"evaluate {name}"
-    seeds = [evaluation_seed(e.seed, args.variant, i) for i in range(episodes)]
     policies = [
         PolicySpec(
             fmt, str(path.resolve()), python, tuple(params.train.obs_keys), task_description(spec)
         )
         for path in given
     ]
-    results, wall, probed, unit = roll_out(
-        params, spec, robot, args.variant, policies, seeds, executor, label
+    probed = probe_policies(params, spec, robot, policies)
+    epochs = [checkpoint_epoch(fmt, Path(p.path), f"evaluate {name}") for p in policies]
+    first = probed[0]
+    return EvaluateExternalJob(
+        task=params.task,
+        backend=params.backend,
+        robot=robot,
+        data=args.data,
+        variant=args.variant,
+        policy_format=fmt,
+        checkpoints=tuple(given),
+        names=tuple(p.name for p in policies),
+        rollouts=tuple(
+            eval_job(params, spec, robot, p, args.variant, pr)
+            for p, pr in zip(policies, probed, strict=True)
+        ),
+        epochs=tuple(epoch for epoch, _ in epochs),
+        epoch_unit=epochs[-1][1],
+        inputs={k: (v["shape"], v["dtype"]) for k, v in first.observations.items()},
+        cameras=first.cameras,
+        size=first.size,
+        policy_sha256=policy_digest(given[-1]),
+        seeds=tuple(evaluation_seed(e.seed, args.variant, i) for i in range(episodes)),
+        evaluate=e,
+        executor=executor,
+        metrics_path=Path(args.metrics or default_metrics),
+        plot=Path(args.plot or default_plot),
     )
+
+
+def run(job: EvaluateExternalJob) -> None:
+    # fails at once if another run writes them
+    claim(job.metrics_path, job.plot, inputs=job.checkpoints)
+    for line in job.plan():
+        print(line)
+    results, wall = evaluate_external(job)
     # in the terms of our own evaluation: one training run, its checkpoints in order
     metrics = evaluation_metrics({0: [(epoch, success_rate(r)) for epoch, r in results]})
-    last = given[-1]
+    episodes, e = len(job.seeds), job.evaluate
     metrics.update(
-        epoch_unit=unit,
-        policy_format=fmt,
-        policy=str(last),
-        policy_sha256=policy_digest(last),
+        epoch_unit=job.epoch_unit,
+        policy_format=job.policy_format,
+        policy=str(job.checkpoints[-1]),
+        policy_sha256=job.policy_sha256,
         data_run_id=None,
         episodes=episodes,
-        horizon=spec.horizon,
-        cameras=",".join(probed.cameras),
+        horizon=job.horizon,
+        cameras=",".join(job.cameras),
         wall_seconds=wall,
-        seconds_per_episode=wall / (episodes * len(given)),
+        seconds_per_episode=wall / (episodes * len(job.checkpoints)),
         workers=e.workers,
         executor=e.executor,
     )
     metrics, timings = split_timings(metrics)
     identity = metrics_identity(
-        "evaluate", params.task, params.backend, robot, variant=args.variant, data=args.data
+        "evaluate", job.task, job.backend, job.robot, variant=job.variant, data=job.data
     )
-    with output_set(plot_path, metrics_path) as (tmp_plot, tmp_metrics):
+    with output_set(job.plot, job.metrics_path) as (tmp_plot, tmp_metrics):
         write_episodes(tmp_plot, results)
         write_metrics(tmp_metrics, identity | metrics)
-    write_timings(metrics_path, identity, timings)
-    print(f"evaluate {name}: success {metrics['success_rate_max']:.1f}% -> {metrics_path}")
+    write_timings(job.metrics_path, identity, timings)
+    print(f"{job.label}: success {metrics['success_rate_max']:.1f}% -> {job.metrics_path}")

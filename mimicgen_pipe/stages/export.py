@@ -4,8 +4,9 @@ trajectory files (export.formats), all in one output directory."""
 from __future__ import annotations
 
 import argparse
-import time
+import functools
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -15,8 +16,9 @@ from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.data import layout
 from mimicgen_pipe.data.metrics import metrics_identity, split_timings, write_metrics, write_timings
 from mimicgen_pipe.data.outputs import claim, free_space_error, output_set
-from mimicgen_pipe.data.store import store_cameras
+from mimicgen_pipe.data.store import EpisodeStore, store_cameras
 from mimicgen_pipe.formats import exporters
+from mimicgen_pipe.formats.exporters import ExportJob
 from mimicgen_pipe.run.executors import Executor, map_blocks
 from mimicgen_pipe.stages import add_selection_arguments, output_path, stage_params
 
@@ -32,7 +34,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--metrics", help="metrics JSON (default: metrics/export_<store name>.json)")
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> ExportJob:
+    """The export run ``args`` ask for: the params, the formats, the store read (but for
+    its images) and checked for every format, and its success after every step where the
+    back end gives it; writes nothing."""
     params = stage_params(args)
     if (args.store is None) == (args.variant is None):
         raise InputError("give either --variant (a generated store) or --store")
@@ -51,43 +56,46 @@ def run(args: argparse.Namespace) -> None:
     for fmt in formats:  # every format's check before anything is written
         exporters.check(store, fmt, info)
     step_success = _step_success(store) if params.export.step_success else None
-    claim((out, exporters.export_dir_kind()), metrics_path, inputs=[store_path])
+    replays = functools.partial(
+        _maniskill_replays, store, params.export.workers, params.maniskill.lean_step
+    )
+    return ExportJob(
+        task=params.task,
+        store_path=store_path,
+        store=store,
+        formats=tuple(formats),
+        info=info,
+        step_success=step_success,
+        maniskill_replays=replays if "maniskill" in formats else None,
+        out=out,
+        metrics_path=metrics_path,
+    )
+
+
+def run(job: ExportJob) -> None:
+    store, out = job.store, job.out
+    claim((out, exporters.export_dir_kind()), job.metrics_path, inputs=[job.store_path])
     # HDF5 cannot be stopped cleanly on a full disk (it may crash the process): make sure
-    # beforehand that every format's arrays fit uncompressed
+    # beforehand that every format's arrays fit uncompressed (once claiming has removed
+    # what killed runs left beside the output)
     arrays = [*store.data.values(), *store.episodes.values()]
     pixels = sum(h * w for h, w in store_cameras(store.attrs).values())
     images = int(store.lengths.sum()) * pixels * 3
-    error = free_space_error(out, len(formats) * (sum(a.nbytes for a in arrays) + images))
+    error = free_space_error(out, len(job.formats) * (sum(a.nbytes for a in arrays) + images))
     if error is not None:
         raise error
-    metrics: dict[str, float | int] = {"episodes": store.n_episodes}
     a = store.attrs
     identity = metrics_identity(
-        "export", params.task, a["backend"], a.get("robot"), variant=a.get("variant")
+        "export", job.task, a["backend"], a.get("robot"), variant=a.get("variant")
     )
-    with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
-        tmp_out.mkdir()
-        for fmt in formats:
-            t0 = time.perf_counter()
-            extra = (
-                _maniskill_replays(store, params.export.workers, params.maniskill.lean_step)
-                if fmt == "maniskill"
-                else {"step_success": step_success}
-            )
-            if fmt == "maniskill":
-                ok = sum(bool(r.success[-1]) for r in extra["replays"])
-                metrics["maniskill_replay_success"] = ok / max(1, store.n_episodes)
-            path, figures = exporters.write(store, fmt, tmp_out, info, **extra)
-            metrics[f"{fmt}_seconds"] = round(time.perf_counter() - t0, 2)
-            metrics |= {f"{fmt}_{k}": v for k, v in figures.items()}
-            print(f"export: {fmt} -> {out / path.name}")
-        metrics, timings = split_timings(metrics)
+    with output_set(job.metrics_path, out) as (tmp_metrics, tmp_out):
+        metrics, timings = split_timings(exporters.export(job, tmp_out))
         write_metrics(tmp_metrics, identity | metrics)
-    write_timings(metrics_path, identity, timings)
-    print(f"export: {store.n_episodes} episodes of {store_path} -> {out}")
+    write_timings(job.metrics_path, identity, timings)
+    print(f"export: {store.n_episodes} episodes of {job.store_path} -> {out}")
 
 
-def _step_success(store) -> np.ndarray | None:
+def _step_success(store: EpisodeStore) -> np.ndarray | None:
     """(N_steps,) bool: the task's success after every step, on a back end that restores
     states cheaply (contracts.Backend's RESTORES_CHEAPLY): each stored state but an episode's
     first set in an env and checked, the last step's the episode's ``success``; None on
@@ -117,7 +125,7 @@ def _step_success(store) -> np.ndarray | None:
     return success
 
 
-def _maniskill_replays(store, workers: int, lean_step: bool) -> dict:
+def _maniskill_replays(store: EpisodeStore, workers: int, lean_step: bool) -> dict[str, Any]:
     """The replays, state layout and env_info that the ManiSkill format writes."""
     from mimicgen_pipe.backends.maniskill import trajectory
 

@@ -15,21 +15,20 @@ from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.data import layout
 from mimicgen_pipe.data.metrics import metrics_identity, split_timings, write_metrics, write_timings
 from mimicgen_pipe.data.outputs import claim, output_set, store_kind
-from mimicgen_pipe.data.store import open_store, store_writer
+from mimicgen_pipe.data.store import open_store
 from mimicgen_pipe.media.camera_images import (
     ImageBlockCodec,
+    ImageJob,
     ObserveJob,
     check_input,
     episode_blocks,
     frame_progress,
+    observe,
     observe_metrics,
     observe_run_id,
     observed_attrs,
     open_work_dir,
-    render_blocks,
-    write_observed,
 )
-from mimicgen_pipe.run.executors import Executor
 from mimicgen_pipe.stages import add_selection_arguments, episode_count, output_path, stage_params
 
 
@@ -52,7 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> ObserveJob:
+    """The observe run ``args`` ask for: the params, and the store opened and checked to be
+    one that can be observed as they say, its states to render read; writes nothing."""
     params = stage_params(args)
     if args.episodes is not None:  # in place of observe.episodes, held to the store below
         observe = dataclasses.replace(params.observe, episodes=args.episodes)
@@ -68,40 +69,53 @@ def run(args: argparse.Namespace) -> None:
         raise InputError(f"--episodes {args.episodes}: {store_path} has {view.n_episodes} episodes")
     n = check_input(view, params, args.params, backends.check_cameras)
     a = view.attrs
-    kind = a["kind"]
-    claim((out, store_kind(kind)), metrics_path, inputs=[store_path])
     # the store's own back end renders it, in every worker
     make_renderer = functools.partial(backends.make_renderer, a["backend"])
-    job = ObserveJob(store_path, a["backend"], params.task, a["robot"], tuple(o.cameras),
-                     o.height, o.width, make_renderer)  # fmt: skip
-    blocks = episode_blocks(n)
-    run_id = observe_run_id(params, a, view.read_rows("env_state", range(n)))
-    work = open_work_dir(out, run_id, ImageBlockCodec(blocks, view.lengths, job))
+    images = ImageJob(store_path, a["backend"], params.task, a["robot"], tuple(o.cameras),
+                      o.height, o.width, make_renderer)  # fmt: skip
     # each camera's K and pose (mimicgen_pipe/core/camera_calibration.py), from the back end
-    attrs = observed_attrs(a, params, backends.camera_calibration(o.cameras, o.height, o.width))
+    calibration = backends.camera_calibration(o.cameras, o.height, o.width)
+    return ObserveJob(
+        task=params.task,
+        variant=args.variant,
+        backend=a["backend"],
+        robot=a["robot"],
+        kind=a["kind"],
+        store_path=store_path,
+        view=view,
+        episodes=n,
+        images=images,
+        blocks=episode_blocks(n),
+        workers=o.workers,
+        run_id=observe_run_id(params, a, view.read_rows("env_state", range(n))),
+        attrs=observed_attrs(a, params, calibration),
+        out=out,
+        metrics_path=metrics_path,
+    )
+
+
+def run(job: ObserveJob) -> None:
+    claim((job.out, store_kind(job.kind)), job.metrics_path, inputs=[job.store_path])
+    codec = ImageBlockCodec(job.blocks, job.view.lengths, job.images)
+    work = open_work_dir(job.out, job.run_id, codec)
     t0 = time.perf_counter()
-    frames = int(view.episode_ends[n - 1]) if n else 0
-    label = f"observe {params.task} {args.variant}"
     with (
-        output_set(metrics_path, out) as (tmp_metrics, tmp_out),
-        frame_progress(label, frames, o.workers) as progress,
+        output_set(job.metrics_path, job.out) as (tmp_metrics, tmp_out),
+        frame_progress(job.label, job.frames, job.workers) as progress,
     ):
-        rendering = dataclasses.replace(job, progress=progress.directory)
-        images = render_blocks(rendering, blocks, Executor("local", o.workers), work)
-        try:
-            with store_writer(tmp_out, kind, view.episode_ends[:n], attrs) as writer:
-                seconds = write_observed(writer, view, job, images, blocks, progress, work)
-        finally:
-            images.close()
+        seconds = observe(job, tmp_out, work, progress)
         wall = time.perf_counter() - t0
-        metrics, timings = split_timings(observe_metrics(tmp_out, job, frames, n, seconds, wall))
+        metrics, timings = split_timings(
+            observe_metrics(tmp_out, job.images, job.frames, job.episodes, seconds, wall)
+        )
         identity = metrics_identity(
-            "observe", params.task, a["backend"], a["robot"], variant=args.variant
+            "observe", job.task, job.backend, job.robot, variant=job.variant
         )
         write_metrics(tmp_metrics, identity | metrics)
     work.remove()
-    write_timings(metrics_path, identity, timings)
+    write_timings(job.metrics_path, identity, timings)
     print(
-        f"observe: {metrics['frames']} steps x {len(o.cameras)} cameras of {n} episodes "
-        f"({metrics['image_mb_per_1000_demos']} MB of images per 1000 demos) -> {out}"
+        f"observe: {metrics['frames']} steps x {len(job.images.cameras)} cameras of "
+        f"{job.episodes} episodes ({metrics['image_mb_per_1000_demos']} MB of images per 1000 "
+        f"demos) -> {job.out}"
     )

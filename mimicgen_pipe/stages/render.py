@@ -4,7 +4,7 @@ one variant, replayed from their stored states, captioned with the subtask and s
 from __future__ import annotations
 
 import argparse
-import time
+import functools
 from pathlib import Path
 
 from mimicgen_pipe import backends
@@ -13,7 +13,7 @@ from mimicgen_pipe.data import layout
 from mimicgen_pipe.data.metrics import metrics_identity, write_metrics, write_timings
 from mimicgen_pipe.data.outputs import check_same_run, claim, directory_kind, output_set
 from mimicgen_pipe.data.store import read_store
-from mimicgen_pipe.media.video import episode_frames, write_gif, write_mp4
+from mimicgen_pipe.media.video import RenderJob, render_videos
 from mimicgen_pipe.stages import (
     add_generated_arguments,
     add_selection_arguments,
@@ -32,7 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--metrics", help="metrics JSON (default: metrics/render_<task>_<variant>.json)")
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> RenderJob:
+    """The render run ``args`` ask for: the params, and the kept and failed stores of one
+    generate run read whole, with the states to render; writes nothing."""
     params = stage_params(args)
     r = params.render
     spec = backends.task_spec(params.backend, params.task)
@@ -51,33 +53,31 @@ def run(args: argparse.Namespace) -> None:
         if store.n_episodes and "env_state" not in store.data:
             raise InputError(f"{store.path}: missing data keys ['env_state']")
     check_same_run({k: s.attrs.get("run_id") for k, s in stores.items()})
-    claim((out, MEDIA_DIR), metrics_path, inputs=[kept_path, failed_path])
     attrs = stores["generated"].attrs
-    renderer = backends.make_renderer(
-        params.backend, params.task, attrs["robot"], r.width, r.height
+    make_renderer = functools.partial(
+        backends.make_renderer, params.backend, params.task, attrs["robot"], r.width, r.height
     )
-    fps = int(attrs["control_freq"])
-    frames_total, seconds = 0, 0.0
-    with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
-        tmp_out.mkdir()
-        for kind, store in stores.items():
-            name = "kept" if kind == "generated" else "failed"
-            for i in range(min(r.episodes, store.n_episodes)):
-                t0 = time.perf_counter()
-                title = f"{params.task} {args.variant} {name} #{i}"
-                ok, label = kind == "generated", f"render: {name} {i}"
-                frames = episode_frames(renderer.frame, store, i, spec.subtasks, title, ok, label)
-                seconds += time.perf_counter() - t0
-                frames_total += len(frames)
-                video = f"{name}_{i}.mp4"
-                write_mp4(tmp_out / video, frames, fps)
-                if i == 0:
-                    write_gif(tmp_out / f"{name}_{i}.gif", frames, fps)
-                print(f"render: {name} episode {i} ({len(frames)} frames) -> {out / video}")
-        renderer.close()
-        identity = metrics_identity(
-            "render", params.task, params.backend, attrs["robot"], variant=args.variant
-        )
+    return RenderJob(
+        task=params.task,
+        variant=args.variant,
+        backend=params.backend,
+        robot=attrs["robot"],
+        subtasks=spec.subtasks,
+        stores=stores,
+        episodes=r.episodes,
+        fps=int(attrs["control_freq"]),
+        make_renderer=make_renderer,
+        out=out,
+        metrics_path=metrics_path,
+    )
+
+
+def run(job: RenderJob) -> None:
+    inputs = [s.path for s in job.stores.values()]
+    claim((job.out, MEDIA_DIR), job.metrics_path, inputs=inputs)
+    with output_set(job.metrics_path, job.out) as (tmp_metrics, tmp_out):
+        frames_total, seconds = render_videos(job, tmp_out)
+        identity = metrics_identity("render", job.task, job.backend, job.robot, variant=job.variant)
         write_metrics(tmp_metrics, identity | {"frames": frames_total})
     ms_per_frame = round(1000 * seconds / max(1, frames_total), 1)
-    write_timings(metrics_path, identity, {"ms_per_frame": ms_per_frame})
+    write_timings(job.metrics_path, identity, {"ms_per_frame": ms_per_frame})

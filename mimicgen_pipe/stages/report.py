@@ -13,16 +13,17 @@ from pathlib import Path
 
 from mimicgen_pipe import backends
 from mimicgen_pipe.data import layout
-from mimicgen_pipe.data.metrics import write_metrics
 from mimicgen_pipe.data.outputs import atomic_directory, claim, directory_kind
 from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report import (
+    ReportJob,
     build_report,
     build_suite_report,
     build_transfer_report,
     build_transit_report,
+    write_report,
 )
-from mimicgen_pipe.report.blocks import Block, render_html, render_markdown
+from mimicgen_pipe.report.blocks import Block
 from mimicgen_pipe.report.curves import FIGURES, draw_curves, read_curves
 from mimicgen_pipe.report.inputs import (
     MetricsSet,
@@ -34,7 +35,7 @@ from mimicgen_pipe.report.inputs import (
 )
 from mimicgen_pipe.report.outside import ROBOMIMIC
 from mimicgen_pipe.report.paper import PaperResults, load_paper_results
-from mimicgen_pipe.report.profiles import read_profile_runs
+from mimicgen_pipe.report.profiles import read_made_by, read_profile_runs
 from mimicgen_pipe.report.scaling import DATASET_SIZE, SCALING, draw_dataset_size
 from mimicgen_pipe.report.summary import (
     SUMMARY,
@@ -99,7 +100,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> ReportJob:
+    """The report ``args`` ask for, composed: the params, the paper's numbers, the metrics,
+    plots, media and ablation runs read and checked, its blocks, figures and headline
+    numbers made; writes nothing."""
     params = stage_params(args)
     suite, transit, transfer = args.suite, args.transit, args.transfer
     # None: the default pipeline's
@@ -108,8 +112,6 @@ def run(args: argparse.Namespace) -> None:
     plots_dir = Path(args.plots or layout.plots_dir())
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
     out = output_path(args.out, home / "report" if home else layout.report_dir())
-    # fails at once if another run writes the report, or if out holds anything else
-    claim((out, REPORT_DIR), inputs=[metrics_dir, plots_dir])
     paper = load_paper_results(args.paper)
     ms = read_metrics_folder(metrics_dir)
     images: dict[str, bytes] = {}  # image path in the report -> PNG bytes embedded in the HTML
@@ -140,16 +142,19 @@ def run(args: argparse.Namespace) -> None:
         blocks = build_report(params, spec, ms, ablations_run, paper, names, media, list(figures))
         summary = headline_numbers(params, ms)
         title, runs = f"MimicGen on {params.task}", len(ablations_run)
-    with atomic_directory(out) as tmp:
-        (tmp / "report.md").write_text(render_markdown(blocks))
-        (tmp / "report.html").write_text(render_html(blocks, images, title))
-        for name, data in figures.items():
-            (tmp / name).write_bytes(data)
-        if summary is not None:
-            write_metrics(tmp / SUMMARY, summary)
+    return ReportJob(title, tuple(blocks), images, figures, summary, len(ms.files), runs,
+                     metrics_dir, plots_dir, out)  # fmt: skip
+
+
+def run(job: ReportJob) -> None:
+    # fails at once if another run writes the report, or if out holds anything else
+    claim((job.out, REPORT_DIR), inputs=[job.metrics_dir, job.plots_dir])
+    with atomic_directory(job.out) as tmp:
+        write_report(job, tmp)
+    heatmaps = len(job.images) - len(job.figures)
     print(
-        f"report: {len(ms.files)} metrics files, {runs} ablation runs, "
-        f"{len(images) - len(figures)} heat maps, {len(figures)} figures -> {out}"
+        f"report: {job.metrics_files} metrics files, {job.ablation_runs} ablation runs, "
+        f"{heatmaps} heat maps, {len(job.figures)} figures -> {job.out}"
     )
 
 
@@ -166,7 +171,7 @@ def _suite(
     # the main task's policies beside the suite's, when trained under other profiles
     main = params.task not in u.tasks and params.backend == u.backend
     own = [backends.task_spec(u.backend, params.task)] if main else []
-    profiles = ([*own, *specs], read_profile_runs(metrics_dir))
+    profiles = ([*own, *specs], read_profile_runs(metrics_dir), read_made_by(metrics_dir))
     outside_dir = metrics_dir / ROBOMIMIC
     outside = read_metrics_folder(outside_dir) if outside_dir.is_dir() else MetricsSet(())
     blocks = build_suite_report(

@@ -5,17 +5,18 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-from pathlib import Path
 
 from mimicgen_pipe import backends
 from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.core.plain_files import regular_file
+from mimicgen_pipe.core.taskspec import version_record
 from mimicgen_pipe.data import layout
 from mimicgen_pipe.data.metrics import metrics_identity, write_metrics
 from mimicgen_pipe.data.outputs import claim, output_set, store_kind
 from mimicgen_pipe.data.params import Params, data_params
-from mimicgen_pipe.sources import robomimic_source, source_files, source_inputs
-from mimicgen_pipe.sources.recording import record_source_demos
+from mimicgen_pipe.sources import robomimic_source, source_inputs
+from mimicgen_pipe.sources.recording import SourceJob, record_source_demos
+from mimicgen_pipe.sources.source_files import check_file_states
 from mimicgen_pipe.stages import add_selection_arguments, output_path, stage_params
 
 
@@ -74,55 +75,72 @@ def check_source_file(params: Params, params_path: str) -> int:
     return n
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> SourceJob:
+    """The source run ``args`` ask for: the params, the robot, and source.from_file (if any)
+    read and checked whole, a robomimic file's states against an env's; writes nothing."""
     params = with_source_file(stage_params(args), args)
     spec = backends.task_spec(params.backend, params.task)
     p = params.source
     backends.check_robot(params.backend, p.robot)
+    make_env = functools.partial(
+        backends.make_env, params.backend, params.task, p.robot, params.maniskill.lean_step
+    )
     if p.from_file is not None:  # read and checked whole before the simulator starts
         check_source_file(params, args.params)
-    brought_in = source_inputs.file_identity(p.from_file)  # {} for the demonstrator
-    out = output_path(args.out, layout.source_store(params.task))
-    metrics_path = output_path(args.metrics, layout.metrics_file("source", params.task))
-    given = [p.from_file, str(Path(p.from_file).with_suffix(".json"))] if p.from_file else []
-    # fails at once if another run writes them, or if they would replace anything else
-    claim((out, store_kind("source")), metrics_path, inputs=given)
-    env = backends.make_env(params.backend, params.task, p.robot, params.maniskill.lean_step)
-    print(
-        f"source: {p.num_demos} demos of {params.task} on {params.backend} (D0)"
-        + source_inputs.describe(brought_in)
+        if robomimic_source.is_robomimic_file(p.from_file):
+            check_file_states(params.backend, p.from_file, p.num_demos, make_env)
+    return SourceJob(
+        spec=spec,
+        backend=params.backend,
+        source=p,
+        make_env=make_env,
+        demonstrator=functools.partial(backends.source_episodes, params.backend),
+        brought_in=source_inputs.file_identity(p.from_file),  # {} for the demonstrator
+        data_params=data_params(params, "source"),
+        out=output_path(args.out, layout.source_store(params.task)),
+        metrics_path=output_path(args.metrics, layout.metrics_file("source", params.task)),
     )
-    demonstrator = functools.partial(backends.source_episodes, params.backend)
-    draw = functools.partial(source_files.source_episodes, params.backend, demonstrator, env)
-    demos = record_source_demos(env, spec.objects, draw, p, params.task, out, spec.arms)
+
+
+def run(job: SourceJob) -> None:
+    p, task, backend = job.source, job.spec.name, job.backend
+    # fails at once if another run writes them, or if they would replace anything else
+    claim((job.out, store_kind("source")), job.metrics_path, inputs=job.inputs)
+    env = job.make_env()
+    print(
+        f"source: {p.num_demos} demos of {task} on {backend} (D0)"
+        + source_inputs.describe(job.brought_in)
+    )
+    demos = record_source_demos(job, env)
     from mimicgen_pipe.data.store import write_store
 
     # store and metrics written aside, then renamed together (the store last)
-    with output_set(metrics_path, out) as (tmp_metrics, tmp_out):
+    with output_set(job.metrics_path, job.out) as (tmp_metrics, tmp_out):
         write_store(
             tmp_out,
             "source",
             demos.steps,
             demos.episode_fields(),
             {
-                "task": params.task,
+                "task": task,
                 "variant": "D0",
-                "backend": params.backend,
+                "backend": backend,
                 "robot": p.robot,
                 "control_mode": env.control_mode,
                 "control_freq": env.control_freq,
-                "objects": list(spec.objects),
+                "objects": list(job.spec.objects),
                 "source_file": str(p.from_file or "demonstrator"),
-                "params": data_params(params, "source"),
+                "params": job.data_params,
+                **version_record(job.spec),
             },
         )
         write_metrics(
             tmp_metrics,
-            metrics_identity("source", params.task, params.backend, p.robot, variant="D0")
+            metrics_identity("source", task, backend, p.robot, variant="D0")
             | demos.metrics()
-            | brought_in,
+            | job.brought_in,
         )
     print(
-        f"source: {len(demos.steps)} demos -> {out} ({demos.demonstrator_failures} demonstrator "
-        f"and {demos.replay_failures} replay failures dropped)"
+        f"source: {len(demos.steps)} demos -> {job.out} ({demos.demonstrator_failures} "
+        f"demonstrator and {demos.replay_failures} replay failures dropped)"
     )

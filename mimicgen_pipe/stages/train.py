@@ -8,16 +8,19 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-from dataclasses import dataclass
 from pathlib import Path
 
+from mimicgen_pipe import backends
 from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.taskspec import check_task_version
 from mimicgen_pipe.data import layout
 from mimicgen_pipe.data.metrics import metrics_identity, split_timings, write_metrics, write_timings
 from mimicgen_pipe.data.outputs import claim, output_set
 from mimicgen_pipe.data.params import Params, range_error
 from mimicgen_pipe.learn.training import (
     POLICY_DIR,
+    PolicyToTrain,
+    TrainJob,
     policy_training,
     train_policies,
     training_metrics,
@@ -80,19 +83,6 @@ def write_curve(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-@dataclass(frozen=True)
-class PolicyToTrain:
-    """One policy this stage trains: on ``data`` read from ``store``, written to ``out``
-    (checkpoints), ``metrics`` and ``plot`` (training curve)."""
-
-    data: str
-    store: Path
-    out: Path
-    metrics: Path
-    plot: Path
-    num_demos: int  # the first N kept demos of a generated store (not used for "source")
-
-
 def policies(args: argparse.Namespace, params: Params) -> list[PolicyToTrain]:
     """The policies the command line asks for, checked before any work."""
     data: list[str] = args.data
@@ -143,15 +133,12 @@ def with_seeds(params: Params, args: argparse.Namespace) -> Params:
     return dataclasses.replace(params, train=dataclasses.replace(t, **{t.profile: profile}))
 
 
-def run(args: argparse.Namespace) -> None:
+def resolve(args: argparse.Namespace) -> TrainJob:
+    """The train run ``args`` ask for: the params, every policy's options and paths, and
+    every training's store read and checked; writes nothing."""
     params = with_seeds(stage_params(args), args)
     t, prof = params.train, params.train.active
     todo = policies(args, params)
-    # fails at once if another run writes them, or if they would replace anything else
-    claim(
-        *(o for p in todo for o in ((p.out, POLICY_DIR), p.metrics, p.plot)),
-        inputs=[p.store for p in todo],
-    )
     # only the arrays and episodes the trainings use are read, each store checked first
     trainings = [
         policy_training(
@@ -161,11 +148,24 @@ def run(args: argparse.Namespace) -> None:
         )
         for p in todo
     ]
+    spec = backends.task_spec(params.backend, params.task)
+    for p, training in zip(todo, trainings, strict=True):  # data of the task as it is now
+        check_task_version(training.data.attrs, spec, str(p.store))
     side_by_side = min(t.workers, len(todo) * len(prof.seeds))
     if prof.cameras:
         # an image training uses both cores (its threads), and side by side each process
         # would get its own copy of the images (~5 GB for 1000 StackCube demos)
         side_by_side = 1
+    return TrainJob(params.task, params.backend, t, tuple(todo), tuple(trainings), side_by_side)
+
+
+def run(job: TrainJob) -> None:
+    todo, prof = job.policies, job.train.active
+    # fails at once if another run writes them, or if they would replace anything else
+    claim(
+        *(o for p in todo for o in ((p.out, POLICY_DIR), p.metrics, p.plot)),
+        inputs=[p.store for p in todo],
+    )
     # every policy's checkpoints, curve and metrics are written aside and renamed together
     # when all have trained, checkpoints last
     outputs = [p.plot for p in todo] + [p.metrics for p in todo] + [p.out for p in todo]
@@ -173,14 +173,14 @@ def run(args: argparse.Namespace) -> None:
     with output_set(*outputs) as tmps:
         n = len(todo)
         tmp_plots, tmp_metrics, tmp_outs = tmps[:n], tmps[n : 2 * n], tmps[2 * n :]
-        curves = train_policies(trainings, tmp_outs, prof.seeds, side_by_side, prof.threads)
-        for i, (p, training, rows) in enumerate(zip(todo, trainings, curves, strict=True)):
+        curves = train_policies(job, tmp_outs)
+        for i, (p, training, rows) in enumerate(zip(todo, job.trainings, curves, strict=True)):
             write_curve(tmp_plots[i], rows)
             meta = training.meta
-            metrics, timings = split_timings(training_metrics(t, training, rows, side_by_side))
-            identity = metrics_identity(
-                "train", params.task, params.backend, meta["robot"], data=p.data
+            metrics, timings = split_timings(
+                training_metrics(job.train, training, rows, job.side_by_side)
             )
+            identity = metrics_identity("train", job.task, job.backend, meta["robot"], data=p.data)
             write_metrics(tmp_metrics[i], identity | metrics)
             times.append((p.metrics, identity, timings))
             episodes = meta["train_episodes"] + meta["val_episodes"]

@@ -23,7 +23,8 @@ version, and the conventions of the arrays it wrote) in its own metadata, under
 PROVENANCE_KEY.
 
 Every format reads the same :class:`ExportInfo`, made by the export stage from the store's
-attrs and params.yaml, and the same store: :func:`read` gives every array but the camera
+attrs and params.yaml (its job, :class:`ExportJob`, written by :func:`export`), and the same
+store: :func:`read` gives every array but the camera
 images, which the formats read one episode at a time (:func:`episode_images`), so that an
 export's memory does not grow with the images (1000 stack_cube demos of two 84x84
 cameras hold about 4.7 GB of them).
@@ -32,8 +33,9 @@ cameras hold about 4.7 GB of them).
 from __future__ import annotations
 
 import importlib.metadata
+import time
 import types
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -192,6 +194,51 @@ def write(
     module = exporter(fmt)
     path = Path(out_dir) / module.FILE_NAME
     return path, module.write(store, path, info, **extra)
+
+
+@dataclass(frozen=True)
+class ExportJob:
+    """One export run, checked (mimicgen_pipe.stages.export.resolve): the store at
+    ``store_path`` of task ``task`` (``store``, read but for its camera images), in every
+    format of ``formats`` (each one's :func:`check` passed), with ``info``, written into the
+    export directory ``out`` and its numbers into the metrics JSON ``metrics_path``.
+    ``step_success``: (N_steps,) the task's success after every step (None where export.
+    step_success is off or the back end does not restore states cheaply);
+    ``maniskill_replays``: what replays the episodes in ManiSkill for its trajectory format,
+    returning that format's ``write`` extras (None without the format)."""
+
+    task: str
+    store_path: Path
+    store: EpisodeStore
+    formats: tuple[str, ...]
+    info: ExportInfo
+    step_success: np.ndarray | None
+    maniskill_replays: Callable[[], dict[str, Any]] | None
+    out: Path
+    metrics_path: Path
+
+
+def export(job: ExportJob, out_dir: Path) -> dict[str, float | int]:
+    """Every format of ``job`` written, in order, into the new directory ``out_dir`` (the
+    temporary of the job's ``out``). Returns the metrics' numbers: episodes, each format's
+    seconds and figures, and the share of episodes whose ManiSkill replay succeeds."""
+    store = job.store
+    metrics: dict[str, float | int] = {"episodes": store.n_episodes}
+    out_dir.mkdir()
+    for fmt in job.formats:
+        t0 = time.perf_counter()
+        if fmt == "maniskill":
+            assert job.maniskill_replays is not None
+            extra = job.maniskill_replays()
+            ok = sum(bool(r.success[-1]) for r in extra["replays"])
+            metrics["maniskill_replay_success"] = ok / max(1, store.n_episodes)
+        else:
+            extra = {"step_success": job.step_success}
+        path, figures = write(store, fmt, out_dir, job.info, **extra)
+        metrics[f"{fmt}_seconds"] = round(time.perf_counter() - t0, 2)
+        metrics |= {f"{fmt}_{k}": v for k, v in figures.items()}
+        print(f"export: {fmt} -> {job.out / path.name}")
+    return metrics
 
 
 def read(path: str | Path, task: str) -> EpisodeStore:

@@ -29,13 +29,20 @@ nothing of mimicgen_pipe at its top; it defines
 - ``EPOCH_UNIT`` (``epoch`` or ``step``) and ``checkpoint_epoch(path) -> int | None``: how far
   its training had got when it saved the policy at ``path``, in that unit, read from the
   path as the framework names its checkpoints, None where the path does not say.
+
+robomimic's own BC-RNN is trained here too, on our robomimic export, in the same Python
+(:class:`TrainRobomimicJob`, the train_robomimic stage): ``_robomimic_train.py``, run by
+path, runs robomimic's trainer on the config :func:`run_config` makes.
 """
 
 from __future__ import annotations
 
+import copy
 import functools
 import hashlib
+import json
 import os
+import re
 import select
 import subprocess
 import tempfile
@@ -48,9 +55,10 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from mimicgen_pipe.core.errors import InputError
+from mimicgen_pipe.core.errors import InputError, StageError
 from mimicgen_pipe.core.registry import choices, load
 from mimicgen_pipe.core.taskspec import ARM_ACTION_DIM
+from mimicgen_pipe.data.params import TrainProfile
 from mimicgen_pipe.formats.external._serve import (
     LENGTH,
     OFFLINE,
@@ -410,3 +418,85 @@ def start_policy(spec: PolicySpec, **timeouts: float) -> ExternalPolicy:
 def load_external_policy(spec: PolicySpec, name: str) -> ExternalPolicy:
     """mimicgen_pipe.learn.evaluation's ``load_policy`` for ``spec`` (``name``: its name there)."""
     return start_policy(spec)
+
+
+TRAINER = Path(__file__).resolve().parent / "_robomimic_train.py"  # run in robomimic's Python
+# robomimic's log: "Train Epoch <N>" then that epoch's training statistics as a JSON object
+EPOCH_LOG = re.compile(r"^Train Epoch (\d+)\n(\{\n.*?\n\})$", re.M | re.S)
+
+
+@dataclass(frozen=True)
+class TrainRobomimicJob:
+    """One train_robomimic run, checked (mimicgen_pipe.stages.train_robomimic.resolve):
+    robomimic's BC-RNN of the robomimic ``config`` (algo_name bc with an RNN:
+    :func:`check_bc_rnn`), trained in ``python`` (robomimic's interpreter) on our robomimic
+    export ``dataset`` of ``data`` (task ``task`` of back end ``backend``, arm ``robot``), at
+    the size and schedule of our training profile ``profile`` (params train.profile
+    ``profile_name``), one run of its first seed, a checkpoint every ``every_epochs`` epochs,
+    observations as stored or ``normalize``d by robomimic. Written as the checkpoints ``out``
+    (model_epoch_<N>.pth), the metrics JSON ``metrics_path`` and the loss per epoch ``plot``
+    (CSV)."""
+
+    task: str
+    backend: str
+    robot: str
+    data: str
+    profile_name: str
+    profile: TrainProfile
+    every_epochs: int
+    normalize: bool
+    dataset: Path
+    config: Mapping[str, Any]
+    python: str
+    out: Path
+    metrics_path: Path
+    plot: Path
+
+
+def check_bc_rnn(config: Mapping[str, Any]) -> None:
+    """InputError unless ``config`` is one of robomimic's BC-RNN (algo_name bc, algo.rnn)."""
+    if config.get("algo_name") != "bc" or not config.get("algo", {}).get("rnn"):
+        raise InputError("config: expected robomimic's BC-RNN (algo_name bc, algo.rnn)")
+
+
+def run_config(job: TrainRobomimicJob, output_dir: Path) -> dict[str, Any]:
+    """The job's config with our profile's sizes and schedule, its first seed, a checkpoint
+    every ``every_epochs`` epochs, the dataset and output folder; rollouts and validation
+    off (robomimic cannot build our env, and normalises no validation data)."""
+    c, prof = copy.deepcopy(dict(job.config)), job.profile
+    e, t, a = c["experiment"], c["train"], c["algo"]
+    e.update(name="run", validate=False, epoch_every_n_steps=prof.steps_per_epoch)
+    e["save"] |= {"enabled": True, "every_n_epochs": job.every_epochs, "on_best_validation": False}
+    e["rollout"] = {"enabled": False}
+    e["logging"] = {"terminal_output_to_txt": True, "log_tb": False, "log_wandb": False}
+    t.update(
+        data=str(job.dataset.resolve()), output_dir=str(output_dir), seed=prof.seeds[0],
+        num_epochs=prof.epochs, batch_size=prof.batch_size, seq_length=prof.seq_len,
+        hdf5_normalize_obs=job.normalize, hdf5_filter_key="train", cuda=False,
+    )  # fmt: skip
+    a["rnn"] |= {"horizon": prof.seq_len, "hidden_dim": prof.hidden, "num_layers": prof.layers}
+    a.setdefault("optim_params", {}).setdefault("policy", {})["learning_rate"] = {
+        "initial": prof.lr, "decay_factor": 0.1, "epoch_schedule": [],
+    }  # fmt: skip
+    return c
+
+
+def epoch_losses(log: str) -> list[tuple[int, float]]:
+    """(epoch, mean training loss) of each epoch robomimic logged."""
+    return [(int(n), float(json.loads(body)["Loss"])) for n, body in EPOCH_LOG.findall(log)]
+
+
+def train_robomimic(job: TrainRobomimicJob, work: Path) -> tuple[Path, float]:
+    """robomimic's training of ``job`` in the scratch folder ``work``, its output (each
+    epoch's statistics, its progress bars) passed through: its run folder and wall time
+    [s]; StageError when it fails."""
+    path = work / "config.json"
+    path.write_text(json.dumps(run_config(job, work / "runs"), indent=1))
+    t0 = time.perf_counter()
+    res = subprocess.run([job.python, str(TRAINER), "--config", str(path)], check=False)
+    if res.returncode != 0:
+        raise StageError(
+            f"robomimic's training failed (exit {res.returncode}; its output is above)"
+        )
+    (run,) = (work / "runs/run").iterdir()  # robomimic's <time stamp> folder
+    return run, time.perf_counter() - t0

@@ -6,7 +6,7 @@ peg_insertion's task with the clearance of robosuite's Square, 6.75 mm between p
 on each side, where ManiSkill's PegInsertionSide leaves 3 mm. Square's square peg is 3.2 cm
 across and its nut's hole 4.55 cm (robosuite's square-nut.xml); here the same 17.1 cm peg of
 radius 2.0 cm goes into a hole of radius 2.675 cm. Everything else is peg_insertion's
-(mimicgen_pipe/tasks/maniskill/peg_insertion.py): the peg, the box, the subtasks, the
+(mimicgen_pipe/backends/maniskill/peg_in_hole.py): the peg, the box, the subtasks, the
 success test, reset variants D0-D2 and the horizon. peg_insertion stays ManiSkill's harder
 benchmark; this one compares with the paper's Square row.
 
@@ -36,23 +36,14 @@ peg_insertion's:
 
 from __future__ import annotations
 
-import dataclasses
-
-from mimicgen_pipe.backends.maniskill.tasks import ManiSkillTask
-from mimicgen_pipe.tasks.maniskill.peg_insertion import TASK as PEG_INSERTION
+from mimicgen_pipe.backends.maniskill.peg_in_hole import D0, DEG, peg_task, variant
 
 SQUARE_CLEARANCE = 0.00675  # [m] on each side: (4.55 - 3.2) cm / 2, robosuite's Square
 
-_spec = PEG_INSERTION.spec
-TASK: ManiSkillTask = dataclasses.replace(
-    PEG_INSERTION,
-    spec=dataclasses.replace(
-        _spec,
-        name="peg_insertion_square",
-        # O1's other peg is peg_insertion's object-transfer study; not repeated here
-        reset_variants={v: _spec.reset_variants[v] for v in ("D0", "D1", "D2")},
-    ),
+TASK = peg_task(
+    "peg_insertion_square",
+    # O1's other peg is peg_insertion's object-transfer study; not repeated here
+    {"D0": D0, "D1": variant(22.5 * DEG), "D2": variant(45 * DEG)},
     planner="PegInsertionSide-v1",  # ManiSkill's motion-planning solution for the task
-    variant_scene_seeds={},
     env_attributes={"_clearance": SQUARE_CLEARANCE},
 )

@@ -45,15 +45,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from mimicgen_pipe.backends.maniskill.cube_motions import HALF, grasp, panda_planner, place
 from mimicgen_pipe.backends.maniskill.tasks import FULL_YAW, PANDA_REACH, ManiSkillTask
 from mimicgen_pipe.core.taskspec import ObjectBounds, ResetVariant, SubtaskSpec, TaskSpec
-from mimicgen_pipe.tasks.maniskill.stack_pyramid import (
-    HALF,
-    OBJECTS,
-    grasp,
-    panda_planner,
-    place,
-)
+
+OBJECTS = ("cubeA", "cubeB", "cubeC")
 
 F32 = np.float32
 # StackCube-v1's "on" test: centres within the half diagonal + 5 mm in xy, 2 * HALF apart in z
