@@ -28,7 +28,9 @@ from mimicgen_pipe.data.store import store_writer
 BACKENDS = {"maniskill": "stack_cube", "pybullet": "stack"}
 CAMERA_SETS = (("agentview",), ("eye_in_hand",), ("agentview", "eye_in_hand"))
 SIZES = (84, 128)
-SHADERS = {"maniskill": ("default", "minimal"), "pybullet": ("tiny_renderer",)}
+# ManiSkill: SAPIEN's shaders on the full scene, and "lean": the stages' renderer (the lean
+# scene and shader, mimicgen_pipe/backends/maniskill/render.py; benchmarks/render.py)
+SHADERS = {"maniskill": ("default", "minimal", "lean"), "pybullet": ("tiny_renderer",)}
 
 
 def random_states(backend: str, task: str, episodes: int, steps: int) -> np.ndarray:
@@ -50,7 +52,9 @@ def renderer(backend: str, task: str, size: int, cameras: tuple[str, ...], shade
     if backend == "maniskill":
         from mimicgen_pipe.backends.maniskill.render import Renderer
 
-        return Renderer(task, "panda", size, size, cameras, shader=shader)
+        if shader == "lean":
+            return Renderer(task, "panda", size, size, cameras)
+        return Renderer(task, "panda", size, size, cameras, shader=shader, lean=False)
     from mimicgen_pipe.backends.pybullet.render import Renderer
 
     return Renderer(task, "panda", size, size, cameras)

@@ -125,6 +125,15 @@ def test_the_code_digest_follows_the_source(tmp_path, monkeypatch):
     before = code_digest("pkg_under_test")
     (pkg / "a.py").write_text("X = 2\n")
     assert code_digest("pkg_under_test") != before
+    (pkg / "shaders").mkdir()  # a camera's shader makes its pictures as the Python does
+    (pkg / "shaders" / "gbuffer.frag").write_text("void main() {}\n")
+    with_shader = code_digest("pkg_under_test")
+    assert with_shader != before
+    (pkg / "shaders" / "gbuffer.frag").write_text("void main() { }\n")
+    edited = code_digest("pkg_under_test")
+    assert edited != with_shader
+    (pkg / "notes.txt").write_text("not code\n")
+    assert code_digest("pkg_under_test") == edited
 
 
 def test_a_workers_exception_reaches_the_driver():

@@ -62,9 +62,13 @@ def work_dir_of(output: str | os.PathLike) -> Path:
     return output.with_name(f".{output.name}.work")
 
 
+# what a package's results are made by: its Python and its shaders (the ManiSkill cameras')
+CODE_SUFFIXES = (".py", ".vert", ".frag")
+
+
 def code_digest(*packages: str) -> str:
-    """sha256 over the source files of the given top-level packages (found on sys.path):
-    a block computed by other code is not reused."""
+    """sha256 over the source files (CODE_SUFFIXES) of the given top-level packages (found
+    on sys.path): a block computed by other code is not reused."""
     import importlib.util
 
     h = hashlib.sha256()
@@ -73,7 +77,7 @@ def code_digest(*packages: str) -> str:
         if spec is None or not spec.submodule_search_locations:
             raise ValueError(f"{name}: not a package")
         root = Path(next(iter(spec.submodule_search_locations)))
-        for f in sorted(root.rglob("*.py")):
+        for f in sorted(f for f in root.rglob("*") if f.suffix in CODE_SUFFIXES):
             h.update(f.relative_to(root.parent).as_posix().encode() + b"\0")
             h.update(f.read_bytes())
     return h.hexdigest()
