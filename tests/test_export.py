@@ -616,7 +616,7 @@ def test_export_metrics_hold_each_formats_image_bytes_and_its_timings_the_second
     timings = json.loads((tmp_path / "timings/m.json").read_text())
     assert not [k for k in metrics if is_timing(k)]
     identity = {k: metrics[k] for k in IDENTITY_FIELDS}
-    assert timings.keys() == {*identity, "robomimic_seconds", "lerobot_seconds"}
+    assert timings.keys() == {*identity, "robomimic_seconds", "lerobot_seconds", "cpu"}
     assert timings.items() >= identity.items()
     assert timings["robomimic_seconds"] > 0 and timings["lerobot_seconds"] > 0
     with h5py.File(tmp_path / "out/demos.hdf5", "r") as f:

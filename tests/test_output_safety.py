@@ -291,7 +291,7 @@ def test_generate_without_zarr_suffix_keeps_kept_and_failed_apart(work):
     # the run's times apart, in timings/ (not an output: written after the commit)
     timings = json.loads((work / "timings/plain.json").read_text())
     assert "wall_seconds" not in metrics and timings["run_id"] == metrics["run_id"]
-    assert timings.keys() == {*IDENTITY_FIELDS, "run_id", "wall_seconds",
+    assert timings.keys() == {*IDENTITY_FIELDS, "run_id", "wall_seconds", "cpu",
                               "seconds_per_attempt_mean", "seconds_per_attempt_median"}  # fmt: skip
 
 

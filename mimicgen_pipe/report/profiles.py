@@ -11,7 +11,7 @@ section of their own."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from itertools import product
 from pathlib import Path
 
@@ -28,6 +28,11 @@ PROFILES = "profiles"  # the runs' metrics folders, in the suite's metrics folde
 VARIANTS = ("D0", "D1")  # the variants with policies (paper P.1)
 MADE_BY = "made_by.yaml"  # in PROFILES: run -> {commit, trained_on, command}
 MADE_BY_KEYS = ("commit", "trained_on", "command")
+MADE_BY_HAND = (
+    "No stage of this pipeline makes these rows: each run was made by hand, on the machine "
+    f"and with the commands the second table names (`suite/metrics/{PROFILES}/{MADE_BY}`), "
+    "and `dvc repro` neither remakes nor checks them. The GPU runs are not bit-reproducible."
+)
 
 
 def read_profile_runs(metrics_dir: Path) -> dict[str, MetricsSet]:
@@ -51,6 +56,11 @@ def read_made_by(metrics_dir: Path) -> dict[str, dict[str, str]]:
     if not ok:
         raise InputError(f"{path}: expected run: {{{', '.join(MADE_BY_KEYS)}}} for each run")
     return {str(run): {k: str(v[k]) for k in MADE_BY_KEYS} for run, v in found.items()}
+
+
+PROFILE_COLUMNS = ("task", "variant", "run", "demos", "arm", "profile (trained on)", "hidden",
+                   "epochs", "seeds", "checkpoints per seed", "horizon", "generated SR max",
+                   "SR last", "paper (P.1, generated data)")  # fmt: skip
 
 
 def profile_blocks(
@@ -110,22 +120,9 @@ def profile_blocks(
         )
     if not rows:
         return []
-    columns = ("task", "variant", "run", "demos", "arm", "profile (trained on)", "hidden",
-               "epochs", "seeds", "checkpoints per seed", "horizon", "generated SR max", "SR last",
-               "paper (P.1, generated data)")  # fmt: skip
-    made_by = made_by or {}
-    provenance = tuple(
-        (f"`{run}`", *(made_by.get(run, {}).get(k, "not recorded") for k in MADE_BY_KEYS))
-        for run in runs
-    )
     return [
         Heading(2, "Made outside the pipeline: policies by training profile (%)"),
-        Text(
-            "No stage of this pipeline makes these rows: each run was made by hand, on the "
-            "machine and with the commands the second table names "
-            f"(`suite/metrics/{PROFILES}/{MADE_BY}`), and `dvc repro` neither remakes nor "
-            "checks them. The GPU runs are not bit-reproducible."
-        ),
+        Text(MADE_BY_HAND),
         Text(
             "BC-RNN on generated demos of a variant (1000: the suite's policy data; the "
             "default pipeline's store for its task; for another arm, demos generated for it "
@@ -140,9 +137,18 @@ def profile_blocks(
             "names its device and matmul precision, and its weights where they came back as "
             "float16."
         ),
-        Table(columns, tuple(rows)),
-        Table(("run", "commit", "trained on", "made with"), provenance),
+        Table(PROFILE_COLUMNS, tuple(rows)),
+        made_by_table(runs, made_by or {}),
     ]
+
+
+def made_by_table(runs: Iterable[str], made_by: Mapping[str, Mapping[str, str]]) -> Table:
+    """Each run's commit, device and commands (MADE_BY), "not recorded" where it has none."""
+    rows = tuple(
+        (f"`{run}`", *(made_by.get(run, {}).get(k, "not recorded") for k in MADE_BY_KEYS))
+        for run in runs
+    )
+    return Table(("run", "commit", "trained on", "made with"), rows)
 
 
 def _other_arms(paper: PaperResults) -> str:
