@@ -8,6 +8,8 @@ import os
 import platform
 from pathlib import Path
 
+from mimicgen_pipe.data.metrics import cpu_type
+
 FIGURES = Path(__file__).resolve().parent.parent / "metrics" / "benchmarks"
 
 
@@ -20,15 +22,10 @@ def figures_path(script: str) -> Path:
 def machine() -> dict:
     """device, the CPU's model name, its logical CPUs, and the 1-minute load average when
     the figures were taken."""
-    cpuinfo = Path("/proc/cpuinfo")
-    names = [
-        line.split(":", 1)[1].strip()
-        for line in (cpuinfo.read_text().splitlines() if cpuinfo.exists() else [])
-        if line.startswith("model name")
-    ]
+    model = cpu_type()["model_name"]  # the stages' own reading of /proc/cpuinfo
     return {
         "device": "cpu",
-        "cpu": names[0] if names else platform.processor() or platform.machine(),
+        "cpu": model or platform.processor() or platform.machine(),
         "cpus": os.cpu_count(),
         "load_average_1min": round(os.getloadavg()[0], 2),
     }

@@ -307,6 +307,21 @@ def check_cmd(pipeline: Path, stage: dict) -> str:
     return f"mimicgen-pipe check --params {params_dep(pipeline, stage)} --stamp {out}"
 
 
+def check_stage_problems(pipeline: Path, check: dict) -> list[str]:
+    """What is wrong with a pipeline's check stage: it must run ``mimicgen-pipe check`` on
+    the whole params file and write the stamp."""
+    rel = os.path.relpath(pipeline, REPO)
+    out = []
+    if " ".join(str(check.get("cmd", "")).split()) != check_cmd(pipeline, check):
+        out.append(f"{rel}: {CHECK_STAGE}: cmd {check.get('cmd')!r}, should be "
+                   f"{check_cmd(pipeline, check)!r}")  # fmt: skip
+    params_file = params_dep(pipeline, check)
+    if check.get("params") != [{params_file: None}]:
+        out.append(f"{rel}: {CHECK_STAGE}: params {check.get('params')}, should be the whole "
+                   f"params file: [{params_file}:]")  # fmt: skip
+    return out
+
+
 def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
     """What is wrong with the code deps of ``pipeline``'s stages (``doc``: its parsed text,
     read from the file by default): the check stage must run ``mimicgen-pipe check`` on the
@@ -317,18 +332,11 @@ def stage_problems(pipeline: Path, doc: dict | None = None) -> list[str]:
     rel = os.path.relpath(pipeline, REPO)
     check = doc["stages"].get(CHECK_STAGE)
     out = []
-    if check is None and params_path(pipeline).resolve().parent == pipeline.parent.resolve():
+    if check is not None:
+        out += check_stage_problems(pipeline, check)
+    elif params_path(pipeline).resolve().parent == pipeline.parent.resolve():
         return [f"{rel}: no {CHECK_STAGE} stage"]
-    # else a pipeline on another's params file, checked by that pipeline's check stage
-    if check is None:
-        pass
-    elif " ".join(str(check.get("cmd", "")).split()) != check_cmd(pipeline, check):
-        out.append(f"{rel}: {CHECK_STAGE}: cmd {check.get('cmd')!r}, should be "
-                   f"{check_cmd(pipeline, check)!r}")  # fmt: skip
-    params_file = params_dep(pipeline, check) if check is not None else None
-    if check is not None and check.get("params") != [{params_file: None}]:
-        out.append(f"{rel}: {CHECK_STAGE}: params {check.get('params')}, should be the whole "
-                   f"params file: [{params_file}:]")  # fmt: skip
+    # else a study's pipeline on another's params file, checked by that pipeline's check stage
     for name, stage in doc["stages"].items():
         deps = body(stage).get("deps") or []
         wanted = wanted_deps(pipeline, name, stage, params)

@@ -61,6 +61,11 @@ def _line(comment: str) -> str:
     return comment.split("\n", 1)[0] + "\n"
 
 
+def _comment(mapping: CommentedMap, key: Any) -> Any:
+    """The comment token after ``key``'s value in ``mapping`` (None: it has none)."""
+    return (mapping.ca.items.get(key) or [None] * 4)[2]
+
+
 def _last_leaf(node: CommentedMap) -> tuple[CommentedMap, Any]:
     """The mapping and key whose comment holds the lines after ``node``'s last line."""
     key = list(node)[-1]
@@ -78,7 +83,7 @@ def _leave_out(tree: CommentedMap, dotted: str, where: str) -> None:
     # ruamel keeps the lines after a value (a blank line, the next key's heading) in the
     # comment of its last key: hand them to the key before the one left out
     owner, key = _last_leaf(node[last]) if isinstance(node[last], dict) else (node, last)
-    token = (owner.ca.items.get(key) or [None] * 4)[2]
+    token = _comment(owner, key)
     keys = list(node)
     del node[last]
     i = keys.index(last)
@@ -88,7 +93,7 @@ def _leave_out(tree: CommentedMap, dotted: str, where: str) -> None:
     before, at = node, keys[i - 1]
     if isinstance(node[at], dict) and node[at]:
         before, at = _last_leaf(node[at])
-    mine = (before.ca.items.get(at) or [None] * 4)[2]
+    mine = _comment(before, at)
     if mine is not None:
         mine.value = _line(mine.value) + tail
     else:
@@ -100,17 +105,17 @@ def _set(tree: CommentedMap, changes: CommentedMap) -> None:
     for key, value in changes.items():
         known = key in tree
         section = known and isinstance(value, dict) and isinstance(tree[key], dict)
-        theirs = (tree.ca.items.get(key) or [None] * 4)[2]
+        theirs = _comment(tree, key)
         if not known and tree:  # a section of its own, after a blank line
             owner, last = _last_leaf(tree)
-            token = (owner.ca.items.get(last) or [None] * 4)[2]
+            token = _comment(owner, last)
             if token is not None:
                 token.value = _line(token.value) + "\n"
         if section:
             _set(tree[key], value)
         else:
             tree[key] = value
-        ours = (changes.ca.items.get(key) or [None] * 4)[2]
+        ours = _comment(changes, key)
         if ours is None:
             continue
         # the override's own comment replaces params.yaml's; params.yaml's lines after it
