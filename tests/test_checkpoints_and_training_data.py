@@ -145,6 +145,25 @@ def test_evaluate_names_a_checkpoint_without_an_epoch(tmp_path):
     assert "pol/seed0/epoch00001.pt: meta has no 'epoch' (expected a positive integer)" in err
 
 
+def test_checkpoints_of_another_task_version_are_refused_before_a_rollout(tmp_path):
+    """A checkpoint records the task version of the data it trained on (nothing at version
+    1): evaluating it after the task's file moved on names the checkpoint and the versions."""
+    import dataclasses
+
+    from mimicgen_pipe import backends
+    from mimicgen_pipe.learn.evaluation import checkpoints_to_evaluate
+
+    spec = backends.task_spec("maniskill", "stack_cube")
+    keys = ("eef_pos", "gripper_qpos")
+    save_checkpoint(tmp_path / "pol/seed0/epoch00001.pt", tiny_model(),
+                    {"task": "stack_cube", "epoch": 1})  # fmt: skip
+    assert checkpoints_to_evaluate(tmp_path / "pol", spec, keys, 1).runs
+    v2 = dataclasses.replace(spec, version=2)
+    with pytest.raises(InputError, match=r"pol/seed0/epoch00001.pt: made with version 1 of task "
+                       r"stack_cube, whose file is at version 2"):  # fmt: skip
+        checkpoints_to_evaluate(tmp_path / "pol", v2, keys, 1)
+
+
 def test_evaluate_meta_checks():
     check_meta(Path("c.pt"), {"task": "stack_cube", "epoch": 2})
     with pytest.raises(InputError, match="c.pt: meta has no 'task'"):

@@ -18,7 +18,7 @@ from mimicgen_pipe.core.contracts import Env
 from mimicgen_pipe.core.errors import InputError
 from mimicgen_pipe.core.interrupts import Interrupted
 from mimicgen_pipe.core.observations import arms_observation_values, low_dim_observation
-from mimicgen_pipe.core.taskspec import ARM
+from mimicgen_pipe.core.taskspec import ARM, TaskSpec, check_task_version
 from mimicgen_pipe.data.outputs import check_same_run
 from mimicgen_pipe.data.params import EvaluateParams
 from mimicgen_pipe.learn.training import check_meta, find_checkpoints, load_checkpoint
@@ -75,18 +75,19 @@ class Checkpoints:
 
 def checkpoints_to_evaluate(
     directory: Path,
-    task: str,
-    obs_dims: Mapping[str, int],
+    spec: TaskSpec,
     obs_keys: Sequence[str],
     every_epochs: int,
     made_by: str = "",
 ) -> Checkpoints:
     """The checkpoints of policy directory ``directory`` that are rolled out
     (:func:`evaluated_checkpoints`), every checkpoint there loaded and checked first: its
-    meta, its task (``task``), its observation layout (widths as the task's ``obs_dims``,
-    key -> width; keys ``obs_keys``, params' train.obs_keys) and its training run (one for
-    all). Raises InputError naming the file otherwise; for a directory without checkpoints,
-    one that ends with ``made_by`` (what writes them, e.g. "; written by ...")."""
+    meta, its task (``spec``'s, at the version its file has now), its observation layout
+    (widths as the task's observation_dims; keys ``obs_keys``, params' train.obs_keys) and
+    its training run (one for all). Raises InputError naming the file otherwise; for a
+    directory without checkpoints, one that ends with ``made_by`` (what writes them, e.g.
+    "; written by ...")."""
+    task, obs_dims = spec.name, spec.observation_dims
     try:
         runs = find_checkpoints(directory)
     except InputError as exc:
@@ -104,6 +105,7 @@ def checkpoints_to_evaluate(
                 f"{ckpt}: observation layout {layout} (task {meta.get('task')!r}) does not fit "
                 f"task {task!r}, whose observations are {obs_dims}"
             )
+        check_task_version(meta, spec, str(ckpt))
         if list(model.config.obs_keys) != list(obs_keys):
             raise InputError(
                 f"{ckpt}: trained on observation keys {list(model.config.obs_keys)}, but "

@@ -90,7 +90,7 @@ def resolve(args: argparse.Namespace) -> EvaluateJob:
     backends.check_robot(params.backend, robot)
     e = params.evaluate
     checkpoints = checkpoints_to_evaluate(
-        policies, params.task, spec.observation_dims, params.train.obs_keys, e.every_epochs,
+        policies, spec, params.train.obs_keys, e.every_epochs,
         checkpoints_made_by(args.data, policies, args.policies is None),
     )  # fmt: skip
     # an image policy's cameras, rendered in the workers at its training size
