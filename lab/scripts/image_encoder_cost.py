@@ -4,6 +4,8 @@ sizes, on random images and actions: forward, backward and Adam, the pixel shift
 Prints one line per size; the median of steps 3-8.
 
     .venv/bin/python lab/scripts/image_encoder_cost.py --threads 2
+    .venv/bin/python lab/scripts/image_encoder_cost.py --threads 1 --channels 16 \
+        --image-sizes 84 64 48
 """
 
 from __future__ import annotations
@@ -32,21 +34,25 @@ SIZES = [  # (channels, LSTM hidden, batch)
 ]
 
 
-def seconds_per_step(channels: int, hidden: int, batch: int, steps: int = 8) -> float:
+def seconds_per_step(
+    channels: int, hidden: int, batch: int, size: int = 84, steps: int = 8
+) -> float:
     config = PolicyConfig(
         ("eef_pos", "eef_quat", "gripper_qpos"), (3, 4, 2), 7, hidden=hidden,
         image_keys=("agentview_image", "eye_in_hand_image"), channels=channels,
+        image_size=(size, size),
     )  # fmt: skip
     torch.manual_seed(0)
     model = BCRNN(config)
     opt = torch.optim.Adam(model.parameters(), 1e-3)
     gen = torch.Generator().manual_seed(0)
-    images = torch.randint(0, 256, (batch, 10, 2, 84, 84, 3), dtype=torch.uint8)
+    images = torch.randint(0, 256, (batch, 10, 2, size, size, 3), dtype=torch.uint8)
     obs, actions = torch.randn(batch, 10, 9), torch.rand(batch, 10, 7) * 2 - 1
     times = []
     for _ in range(steps):
         t0 = time.perf_counter()
-        frames = shift_images(images.view(-1, 84, 84, 3), (8, 8), gen).view(images.shape)
+        pad = round(0.1 * size)
+        frames = shift_images(images.view(-1, size, size, 3), (pad, pad), gen).view(images.shape)
         loss = nll_loss(model, obs, actions, frames)
         opt.zero_grad()
         loss.backward()
@@ -58,12 +64,16 @@ def seconds_per_step(channels: int, hidden: int, batch: int, steps: int = 8) -> 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--threads", type=int, default=2, help="torch threads")
+    ap.add_argument("--image-sizes", type=int, nargs="+", default=[84], help="square images [px]")
+    ap.add_argument("--channels", type=int, help="only this encoder width, LSTM 400, batch 16")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
-    for channels, hidden, batch in SIZES:
-        s = seconds_per_step(channels, hidden, batch)
-        print(f"threads {a.threads} channels {channels} hidden {hidden} batch {batch}: "
-              f"{s:.3f} s/step")  # fmt: skip
+    sizes = [(a.channels, 400, 16)] if a.channels else SIZES
+    for size in a.image_sizes:
+        for channels, hidden, batch in sizes:
+            s = seconds_per_step(channels, hidden, batch, size)
+            print(f"threads {a.threads} size {size} channels {channels} hidden {hidden} "
+                  f"batch {batch}: {s:.3f} s/step")  # fmt: skip
 
 
 if __name__ == "__main__":
