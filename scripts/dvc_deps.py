@@ -49,6 +49,7 @@ PIPELINES = (
     "quickstart/dvc.yaml",
     "transit/dvc.yaml",
     "transfer/dvc.yaml",
+    "images/dvc.yaml",
 )
 
 
@@ -194,9 +195,12 @@ def stage_code(stage: dict, params: dict) -> tuple[str, str, list[str]]:
     if words[:1] != ["mimicgen-pipe"] or len(words) < 2:
         raise SystemExit(f"a stage command must run mimicgen-pipe: {body(stage)['cmd']!r}")
     backend = words[words.index("--backend") + 1] if "--backend" in words else params["backend"]
-    if "foreach" in stage:  # over named cells of params, each with its task
-        cells = _resolve_value(stage["foreach"], params)
-        tasks = sorted({str(c["task"]) for c in cells.values()})
+    if "foreach" in stage:  # over named cells of params, each with its task, or written out
+        cells = stage["foreach"]
+        cells = _resolve_value(cells, params) if isinstance(cells, str) else cells
+        items = cells.values() if isinstance(cells, dict) else cells
+        named = [c["task"] for c in items if isinstance(c, dict) and "task" in c]
+        tasks = sorted({str(t) for t in named}) if named else [params["task"]]
     elif "${item.task}" in cmd:
         axis = (stage.get("matrix") or {})["task"]
         tasks = _resolve_list(axis, params) if isinstance(axis, str) else [str(t) for t in axis]

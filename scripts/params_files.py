@@ -28,7 +28,7 @@ from typing import Any
 from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap
 
-PIPELINES = ("quickstart", "suite", "transfer", "transit")
+PIPELINES = ("quickstart", "suite", "transfer", "transit", "images")
 OVERRIDES = "params.overrides.yaml"
 NOTE = (
     "# Written by `scripts/params_files.py --write` from ../params.yaml and\n"
@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     for pipeline in PIPELINES:
         target = args.root / pipeline / "params.yaml"
         text = generated(args.root, pipeline)
-        if target.read_text() != text:
+        if not target.exists() or target.read_text() != text:
             if args.write:
                 target.write_text(text)
                 print(f"wrote {target.relative_to(args.root)}")

@@ -337,11 +337,11 @@ def test_check_refuses_a_bad_params_file_or_a_file_it_names(tmp_path, source, ex
     assert f"mimicgen-pipe check: error: params.yaml: {expected}" in msg
 
 
-PIPELINE_FOLDERS = ("", "quickstart", "suite", "transit", "transfer")
+PIPELINE_FOLDERS = ("", "quickstart", "suite", "transit", "transfer", "images")
 
 
 def pipelines_copy(work, params_file, from_file):
-    """``work`` as a repository of the five pipelines (their real dvc.yaml and params
+    """``work`` as a repository of the six pipelines (their real dvc.yaml and params
     files), source.from_file set to ``from_file`` in ``params_file``, and a demo file in
     each inputs folder and elsewhere."""
     (work / ".dvc").mkdir()
@@ -380,6 +380,7 @@ def pipelines_copy(work, params_file, from_file):
         ),
         ("transit/params.yaml", "elsewhere/demo.h5", "transit/dvc.yaml makes its own source"),
         ("transfer/params.yaml", "inputs/demo.h5", "transfer/dvc.yaml makes its own source"),
+        ("images/params.yaml", "inputs/demo.h5", "images/dvc.yaml makes its own source"),
     ],
 )
 def test_check_refuses_a_source_file_its_pipeline_does_not_track(

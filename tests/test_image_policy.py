@@ -7,14 +7,30 @@ from __future__ import annotations
 
 import csv
 import json
+import pickle
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
+from mimicgen_pipe.data.params import TrainParams
 from mimicgen_pipe.learn.policy import BCRNN, ImageEncoder, PolicyConfig, RolloutPolicy
-from mimicgen_pipe.learn.training import load_checkpoint, save_checkpoint, train_policy
-from mimicgen_pipe.learn.training_setup import SequenceData, TrainConfig, shift_images
+from mimicgen_pipe.learn.training import (
+    PolicyTraining,
+    TrainingData,
+    TrainJob,
+    load_checkpoint,
+    save_checkpoint,
+    train_policies,
+    train_policy,
+)
+from mimicgen_pipe.learn.training_setup import (
+    MappedImages,
+    SequenceData,
+    TrainConfig,
+    shift_images,
+)
 from tests.conftest import cli
 
 SIZE = 32  # px: small images, the code path of 84
@@ -119,6 +135,38 @@ def test_a_tiny_image_policy_learns_where_the_square_is():
         )
     error = np.abs(means[:, 0, 0].numpy() - val.actions).mean()
     assert error < 0.5 * np.abs(val.actions - val.actions.mean(0)).mean()
+
+
+def test_mapped_images_index_as_the_array_and_pickle_as_their_path(tmp_path):
+    images = square_episodes(3, 10, seed=0).images
+    mapped = MappedImages.write(tmp_path / "images.npy", images)
+    rows = np.array([[4, 2], [29, 0]])
+    assert np.array_equal(mapped[rows], images[rows]) and mapped.shape == images.shape
+    sent = pickle.dumps(mapped)
+    assert len(sent) < 1000 < images.nbytes  # the path, not the pictures
+    assert np.array_equal(pickle.loads(sent)[rows], images[rows])
+
+
+def test_image_trainings_side_by_side_give_the_checkpoints_one_by_one_gives(tmp_path):
+    """Two seeds in two processes, each reading the images mapped from one file, save the
+    bytes that the same two trainings save one after the other in this process."""
+    train, val = square_episodes(6, 10, seed=0), square_episodes(2, 10, seed=1)
+    config = TrainConfig(image_config(modes=1), batch_size=4, lr=3e-3, epochs=2,
+                         steps_per_epoch=3, checkpoint_every=2, shift=(2, 2))  # fmt: skip
+    data = TrainingData(train, val, (3,), 2, {}, ("agentview",), (SIZE, SIZE))
+    training = PolicyTraining("D0", data, config, {"task": "stack_cube"})
+    t = TrainParams(profile="cpu_image")
+    t = replace(t, cpu_image=replace(t.cpu_image, seeds=[0, 1], threads=1))
+    saved = {}
+    for side_by_side in (1, 2):
+        out = tmp_path / f"side_by_side_{side_by_side}"
+        job = TrainJob("stack_cube", "maniskill", t, (), (training,), side_by_side)
+        curves = train_policies(job, [out])
+        saved[side_by_side] = (
+            {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*.pt"))},
+            [{k: v for k, v in r.items() if k != "seconds"} for r in curves[0]],
+        )
+    assert len(saved[1][0]) == 2 and saved[1] == saved[2]
 
 
 def test_an_image_checkpoint_loads_and_acts_on_the_pictures(tmp_path):

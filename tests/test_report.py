@@ -443,7 +443,7 @@ def run_report(tmp_path: Path, metrics: Path, plots: Path, out: Path) -> None:
     (tmp_path / "params.yaml").write_text("task: stack_cube\ngenerate: {variants: [D0, D1]}\n")
     args = dict(params=str(tmp_path / "params.yaml"), metrics=str(metrics), ablations=None,
                 plots=str(plots), paper=str(PAPER), out=str(out), suite=False,
-                transit=False, transfer=False)  # fmt: skip
+                transit=False, transfer=False, images=False)  # fmt: skip
     with claims():
         report.run(report.resolve(argparse.Namespace(**args)))
 

@@ -5,9 +5,11 @@ and seeds side by side."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pickle
 import re
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -25,6 +27,7 @@ from mimicgen_pipe.data.params import Params, TrainParams, key_range, training_p
 from mimicgen_pipe.learn.policy import BCRNN, PolicyConfig, RolloutPolicy, nll_loss
 from mimicgen_pipe.learn.stacked_training import train_stacked
 from mimicgen_pipe.learn.training_setup import (
+    MappedImages,
     SequenceData,
     TrainConfig,
     TrainingRun,
@@ -662,7 +665,33 @@ def train_policies(job: TrainJob, directories: Sequence[Path]) -> list[list[dict
     (:func:`checkpoint_path`). Returns each policy's training curve: one row per (seed,
     epoch), the seed and then :func:`train_policy`'s row. An Interrupted on the way up says
     how many trainings finished."""
-    trainings, prof = job.trainings, job.train.active
+    image = bool(job.trainings[0].config.policy.image_keys)
+    if not image or job.side_by_side <= 1:
+        return _train_policies(job, directories, job.trainings)
+    # image trainings in other processes: each policy's images mapped from one file
+    with tempfile.TemporaryDirectory(prefix="mimicgen-pipe-images-") as folder:
+        return _train_policies(job, directories, _mapped(job.trainings, Path(folder)))
+
+
+def _mapped(trainings: Sequence[PolicyTraining], folder: Path) -> list[PolicyTraining]:
+    """``trainings`` with each image array written to ``folder`` and mapped from there
+    (MappedImages)."""
+    out = []
+    for k, t in enumerate(trainings):
+        parts = {}
+        for part in ("train", "val"):
+            seq: SequenceData = getattr(t.data, part)
+            assert seq.images is not None
+            images = MappedImages.write(folder / f"{k}_{part}.npy", np.asarray(seq.images))
+            parts[part] = dataclasses.replace(seq, images=images)
+        out.append(dataclasses.replace(t, data=dataclasses.replace(t.data, **parts)))
+    return out
+
+
+def _train_policies(
+    job: TrainJob, directories: Sequence[Path], trainings: Sequence[PolicyTraining]
+) -> list[list[dict[str, float]]]:
+    prof = job.train.active
     runs: list[TrainingRun] = []
     owners: list[int] = []  # the policy each run trains
     for k, training in enumerate(trainings):

@@ -7,8 +7,10 @@ normalisation), and the learning-rate schedule."""
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -16,16 +18,45 @@ import torch
 from mimicgen_pipe.learn.policy import BCRNN, PolicyConfig
 
 
+class MappedImages:
+    """(N, cameras, H, W, 3) uint8 images in a ``.npy`` file, mapped read-only: indexed as
+    the array (an index gives an in-memory copy), pickled as the file's path, so that
+    trainings side by side in other processes share one copy of the images (the page
+    cache's) instead of each receiving its own."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        self._array = np.load(self.path, mmap_mode="r")
+
+    @classmethod
+    def write(cls, path: str | os.PathLike, images: np.ndarray) -> MappedImages:
+        np.save(path, images)
+        return cls(path)
+
+    def __reduce__(self) -> tuple[type[MappedImages], tuple[Path]]:
+        return (MappedImages, (self.path,))
+
+    def __getitem__(self, index: Any) -> np.ndarray:
+        return np.array(self._array[index])
+
+    def __len__(self) -> int:
+        return len(self._array)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self._array.shape
+
+
 @dataclass(frozen=True)
 class SequenceData:
     """Episodes concatenated: obs (N, D) float32, actions (N, A) float32, episode_ends (E,)
     cumulative exclusive ends; for an image policy, images (N, cameras, H, W, 3) uint8 RGB
-    (cameras in PolicyConfig.image_keys order)."""
+    (cameras in PolicyConfig.image_keys order), in memory or mapped from a file."""
 
     obs: np.ndarray
     actions: np.ndarray
     episode_ends: np.ndarray
-    images: np.ndarray | None = None
+    images: np.ndarray | MappedImages | None = None
 
     @property
     def episode_starts(self) -> np.ndarray:
@@ -101,9 +132,16 @@ def shift_images(
     n, h, w = images.shape[:3]
     dy = torch.randint(-shift[0], shift[0] + 1, (n, 1), generator=generator)
     dx = torch.randint(-shift[1], shift[1] + 1, (n, 1), generator=generator)
-    rows = (torch.arange(h) - dy).clamp_(0, h - 1)  # (N, H): source row of each output row
-    cols = (torch.arange(w) - dx).clamp_(0, w - 1)
-    return images[torch.arange(n)[:, None, None], rows[:, :, None], cols[:, None, :]]
+    # the batch edge-padded once, then each image a window of it: a third of the time of
+    # one fancy index over (image, row, column) on 2 cores, the same pixels
+    sy, sx = shift
+    padded = np.pad(images.numpy(), ((0, 0), (sy, sy), (sx, sx), (0, 0)), mode="edge")
+    out = np.empty(images.shape, padded.dtype)
+    for i, (y, x) in enumerate(
+        zip((sy - dy[:, 0]).tolist(), (sx - dx[:, 0]).tolist(), strict=True)
+    ):
+        out[i] = padded[i, y : y + h, x : x + w]
+    return torch.from_numpy(out)
 
 
 def initial_policy(policy: PolicyConfig, train_data: SequenceData, seed: int) -> BCRNN:

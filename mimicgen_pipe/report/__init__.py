@@ -7,9 +7,11 @@ the paper's numbers file (each with the table it was read from). A metric that w
 produced is written ``missing``; no row is made up. A coverage, training or evaluation of
 another generate run than the one shown beside it is marked, never mixed in silently.
 
-Three reports: :func:`build_report`, the default pipeline's (the main task, its policies
+The reports: :func:`build_report`, the default pipeline's (the main task, its policies
 over training, robot transfer, ablations, videos), :func:`build_suite_report`, the task
-suite's, and :func:`build_transit_report`, linear vs planned transit's. Each is a list of
+suite's, :func:`build_transit_report`, linear vs planned transit's,
+:func:`build_transfer_report`, robot transfer's, and :func:`build_images_report`, the image
+agents'. Each is a list of
 blocks (mimicgen_pipe.report.blocks) rendered as Markdown and HTML. The default pipeline's
 report comes with its figures of the policies over training (mimicgen_pipe.report.curves)
 and its headline numbers (mimicgen_pipe.report.summary). The report stage composes one into
@@ -30,6 +32,7 @@ from mimicgen_pipe.report import method, suite
 from mimicgen_pipe.report.ablations import ablation_blocks, suite_ablation_blocks
 from mimicgen_pipe.report.blocks import Block, render_html, render_markdown
 from mimicgen_pipe.report.curves import curve_blocks
+from mimicgen_pipe.report.images import images_blocks
 from mimicgen_pipe.report.inputs import Media, MetricsSet, Run
 from mimicgen_pipe.report.outside import outside_learner_blocks
 from mimicgen_pipe.report.paper import PaperResults
@@ -128,6 +131,14 @@ def build_transfer_report(
 def build_transit_report(params: Params, ms: MetricsSet) -> list[Block]:
     """The transit pipeline's report (params planned_transit.*): ``ms``, its metrics folder."""
     return transit_blocks(params, ms)
+
+
+def build_images_report(
+    params: Params, spec: TaskSpec, ms: MetricsSet, paper: PaperResults
+) -> list[Block]:
+    """The image agents' report (images/dvc.yaml): ``spec``, the main task's; ``ms``, the
+    pipeline's metrics folder."""
+    return images_blocks(params, spec, ms, paper)
 
 
 @dataclass(frozen=True)

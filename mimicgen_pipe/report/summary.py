@@ -9,6 +9,7 @@ from __future__ import annotations
 from mimicgen_pipe.data.metrics import Metrics
 from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report.fmt import CI_BOUNDS, dgr_counts, fmt, sr_counts, wilson_interval
+from mimicgen_pipe.report.images import DATA, VARIANT
 from mimicgen_pipe.report.inputs import MetricsSet, coverage, evaluation, policy_data
 from mimicgen_pipe.report.suite import dgr_run
 from mimicgen_pipe.report.transfer import transfer_cell
@@ -102,6 +103,20 @@ def transit_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]
             numbers[f"dgr_{task}_{variant}_{transit}"] = _dgr(run)
     for transit in ("linear", "planned"):
         numbers[f"sr_wall_{transit}"] = _sr(wall_evaluation(ms, transit))
+    return _flat(numbers)
+
+
+def images_headline_numbers(params: Params, ms: MetricsSet) -> dict[str, float]:
+    """The image-agent pipeline's headline numbers: ``sr_source_on_D0`` and ``sr_D0_on_D0``,
+    the image agents' success rate max on D0 (mean over seeds) trained on the source demos
+    and on the generated D0 demos, each with its interval's bounds. A number whose metrics
+    are not in ``ms`` is left out."""
+    numbers = {
+        f"sr_{data}_on_{VARIANT}": _sr(
+            evaluation(ms, params, params.task, params.backend, data, VARIANT)
+        )
+        for data in DATA
+    }
     return _flat(numbers)
 
 

@@ -127,6 +127,19 @@ def check_policy_cells(u: SuiteParams, path: str) -> None:
                              f"policy of {e.task}")  # fmt: skip
 
 
+def check_image_size(params: Params, path: str) -> None:
+    """An image profile trains on the observe stage's images: InputError naming the keys
+    unless observe.height and observe.width are train.cpu_image.image_size."""
+    size = list(params.train.cpu_image.image_size)
+    observed = [params.observe.height, params.observe.width]
+    if params.train.profile == "cpu_image" and observed != size:
+        raise InputError(
+            f"{path}: observe.height, observe.width: {observed[0]}x{observed[1]} px, but the "
+            f"image agents (train.profile cpu_image) train on {size[0]}x{size[1]} px images "
+            "(train.cpu_image.image_size): set both to one size"
+        )
+
+
 # the sections of one pipeline only, checked where that pipeline's params file has them
 SECTION_CHECKS = {"suite": check_suite, "transfer": check_transfer}
 
@@ -136,6 +149,7 @@ def resolve(args: argparse.Namespace) -> CheckJob:
     the pipeline sections it has (SECTION_CHECKS); writes nothing."""
     params = load_params(args.params)
     check_variants(params, args.params)
+    check_image_size(params, args.params)
     present = read_yaml(Path(args.params), "params file")
     for section, check in SECTION_CHECKS.items():
         if section in present:

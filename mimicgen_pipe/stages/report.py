@@ -2,8 +2,9 @@
 the default pipeline's (metrics/, plots/, media/ -> report/, with summary.json, its headline
 numbers, and the figures of its policies over training) or, with --suite, the task suite's
 (suite/metrics/ -> suite/report/), with --transit, linear vs planned transit's
-(transit/metrics/ -> transit/report/), or, with --transfer, robot transfer's
-(transfer/metrics/ -> transfer/report/). Each writes its headline numbers to summary.json."""
+(transit/metrics/ -> transit/report/), with --transfer, robot transfer's
+(transfer/metrics/ -> transfer/report/), or, with --images, the image agents'
+(images/metrics/ -> images/report/). Each writes its headline numbers to summary.json."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from mimicgen_pipe.data.outputs import atomic_directory, claim, directory_kind
 from mimicgen_pipe.data.params import Params
 from mimicgen_pipe.report import (
     ReportJob,
+    build_images_report,
     build_report,
     build_suite_report,
     build_transfer_report,
@@ -40,6 +42,7 @@ from mimicgen_pipe.report.scaling import DATASET_SIZE, SCALING, draw_dataset_siz
 from mimicgen_pipe.report.summary import (
     SUMMARY,
     headline_numbers,
+    images_headline_numbers,
     suite_headline_numbers,
     transfer_headline_numbers,
     transit_headline_numbers,
@@ -55,6 +58,7 @@ REPORT_DIR = directory_kind(
 SUITE = Path("suite")  # the task suite's metrics/ and report/ (suite/dvc.yaml)
 TRANSIT = Path("transit")  # linear vs planned transit's (transit/dvc.yaml)
 TRANSFER = Path("transfer")  # robot transfer's (transfer/dvc.yaml)
+IMAGES = Path("images")  # the image agents' (images/dvc.yaml)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -76,9 +80,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="robot transfer's report (params transfer.*: DGR per arm, policies) instead",
     )
+    which.add_argument(
+        "--images",
+        action="store_true",
+        help="the image agents' report (source and generated D0 demos, beside the paper's "
+        "Fig. 4) instead",
+    )
     p.add_argument(
         "--metrics",
-        help="metrics folder (default: metrics, or suite/, transit/ or transfer/metrics)",
+        help="metrics folder (default: metrics, or suite/, transit/, transfer/ or images/metrics)",
     )
     p.add_argument(
         "--ablations",
@@ -96,7 +106,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the paper's numbers (default: reference/paper_results.yaml)",
     )
     p.add_argument(
-        "--out", help="report folder (default: report, or suite/, transit/ or transfer/report)"
+        "--out",
+        help="report folder (default: report, or suite/, transit/, transfer/ or images/report)",
     )
 
 
@@ -105,9 +116,9 @@ def resolve(args: argparse.Namespace) -> ReportJob:
     plots, media and ablation runs read and checked, its blocks, figures and headline
     numbers made; writes nothing."""
     params = stage_params(args)
-    suite, transit, transfer = args.suite, args.transit, args.transfer
-    # None: the default pipeline's
-    home = SUITE if suite else TRANSIT if transit else TRANSFER if transfer else None
+    suite, transit, transfer, images_ = args.suite, args.transit, args.transfer, args.images
+    homes = ((suite, SUITE), (transit, TRANSIT), (transfer, TRANSFER), (images_, IMAGES))
+    home = next((h for chosen, h in homes if chosen), None)  # None: the default pipeline's
     metrics_dir = Path(args.metrics or (home / "metrics" if home else layout.metrics_dir()))
     plots_dir = Path(args.plots or layout.plots_dir())
     ablations_dir = Path(args.ablations or metrics_dir / layout.ablations_dir().name)
@@ -122,6 +133,11 @@ def resolve(args: argparse.Namespace) -> ReportJob:
         blocks = build_transfer_report(params, specs, ms, paper)
         summary = transfer_headline_numbers(params, ms)
         title, runs = "Robot transfer", 0
+    elif images_:
+        spec = backends.task_spec(params.backend, params.task)
+        blocks = build_images_report(params, spec, ms, paper)
+        summary = images_headline_numbers(params, ms)
+        title, runs = f"Image agents on {params.task}", 0
     elif transit:
         blocks = build_transit_report(params, ms)
         summary = transit_headline_numbers(params, ms)

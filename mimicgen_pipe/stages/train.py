@@ -151,11 +151,8 @@ def resolve(args: argparse.Namespace) -> TrainJob:
     spec = backends.task_spec(params.backend, params.task)
     for p, training in zip(todo, trainings, strict=True):  # data of the task as it is now
         check_task_version(training.data.attrs, spec, str(p.store))
+    # image trainings side by side share one copy of the images (mapped from a file)
     side_by_side = min(t.workers, len(todo) * len(prof.seeds))
-    if prof.cameras:
-        # an image training uses both cores (its threads), and side by side each process
-        # would get its own copy of the images (~5 GB for 1000 StackCube demos)
-        side_by_side = 1
     return TrainJob(params.task, params.backend, t, tuple(todo), tuple(trainings), side_by_side)
 
 
