@@ -91,7 +91,7 @@ def test_the_headline_numbers_are_the_tables():
 def test_the_agents_image_size_must_be_the_observed_one(tmp_path):
     params = image_params()
     check_image_size(params, "images/params.yaml")  # the committed file agrees
-    wrong = replace(params, observe=replace(params.observe, height=64))
+    wrong = replace(params, observe=replace(params.observe, height=params.observe.height + 1))
     with pytest.raises(InputError, match=r"images/params.yaml: observe.height, observe.width"):
         check_image_size(wrong, "images/params.yaml")
     # a low-dim profile reads no images: any observe size
