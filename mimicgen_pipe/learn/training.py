@@ -667,10 +667,10 @@ def train_policies(job: TrainJob, directories: Sequence[Path]) -> list[list[dict
     how many trainings finished."""
     image = bool(job.trainings[0].config.policy.image_keys)
     if not image or job.side_by_side <= 1:
-        return _train_policies(job, directories, job.trainings)
+        return _train_policies(job, directories, job.trainings, image)
     # image trainings in other processes: each policy's images mapped from one file
     with tempfile.TemporaryDirectory(prefix="mimicgen-pipe-images-") as folder:
-        return _train_policies(job, directories, _mapped(job.trainings, Path(folder)))
+        return _train_policies(job, directories, _mapped(job.trainings, Path(folder)), image)
 
 
 def _mapped(trainings: Sequence[PolicyTraining], folder: Path) -> list[PolicyTraining]:
@@ -689,7 +689,7 @@ def _mapped(trainings: Sequence[PolicyTraining], folder: Path) -> list[PolicyTra
 
 
 def _train_policies(
-    job: TrainJob, directories: Sequence[Path], trainings: Sequence[PolicyTraining]
+    job: TrainJob, directories: Sequence[Path], trainings: Sequence[PolicyTraining], image: bool
 ) -> list[list[dict[str, float]]]:
     prof = job.train.active
     runs: list[TrainingRun] = []
@@ -700,8 +700,7 @@ def _train_policies(
             label = f"train {training.name} seed {seed}"
             runs.append(TrainingRun(data.train, data.val, training.config, seed, label, len(runs)))
             owners.append(k)
-    # the stacked network is the LSTM's alone: image policies train one by one
-    image = bool(runs[0].config.policy.image_keys)
+    # the stacked network is the LSTM's alone: image policies train as networks of their own
     on_gpu = torch.device(runs[0].config.device).type == "cuda" and not image
     results = (
         stacked_trainings(runs) if on_gpu else run_trainings(runs, job.side_by_side, prof.threads)

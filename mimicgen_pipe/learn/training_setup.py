@@ -39,9 +39,6 @@ class MappedImages:
     def __getitem__(self, index: Any) -> np.ndarray:
         return np.array(self._array[index])
 
-    def __len__(self) -> int:
-        return len(self._array)
-
     @property
     def shape(self) -> tuple[int, ...]:
         return self._array.shape
