@@ -25,6 +25,8 @@ fenced code blocks and inline `code` spans:
    time: within 10 % of the sum of ``wall_seconds`` over the timings files of the metrics
    files its lock records as outputs (``timings/`` beside ``metrics/``), and those of the
    studies in its folder (the suite's ``suite/<study>/dvc.lock``), which its report reads.
+   A training's ``wall_seconds`` is divided by the trainings that ran side by side with it
+   (``trainings_side_by_side`` of its metrics), so that their shared hours count once.
 """
 
 from __future__ import annotations
@@ -187,7 +189,10 @@ def pipeline_seconds(lock: Path) -> float:
             if path.suffix == ".json" and path.is_file():
                 timings = json.loads(path.read_text())
                 if isinstance(timings, dict):
-                    total += float(timings.get("wall_seconds", 0.0))
+                    m = root / out["path"]
+                    metrics = json.loads(m.read_text()) if m.is_file() else {}
+                    side_by_side = metrics.get("trainings_side_by_side") or 1
+                    total += float(timings.get("wall_seconds", 0.0)) / side_by_side
     return total
 
 
@@ -298,6 +303,22 @@ def test_a_pipeline_time_is_its_stages_wall_seconds(tmp_path: Path) -> None:
         "It takes about 27 min ([lock](../dvc.lock)).\n\n"
         "It takes about 40 min ([lock](../dvc.lock)).\n"
     )
+    assert [p.split(" -> ")[1] for p in unbacked(page, root=tmp_path)] == [
+        "'40 min' is not in dvc.lock"
+    ]
+
+
+def test_trainings_side_by_side_count_their_shared_time_once(tmp_path: Path) -> None:
+    """Two trainings of 1200 s each, side by side, are 20 min of the pipeline, not 40."""
+    page = _repo(tmp_path, {"dgr": 90.0})
+    (tmp_path / "timings").mkdir()
+    lock = "schema: '2.0'\nstages:\n  train:\n    outs:\n"
+    for name in ("a", "b"):
+        (tmp_path / "metrics" / f"{name}.json").write_text('{"trainings_side_by_side": 2}')
+        (tmp_path / "timings" / f"{name}.json").write_text('{"wall_seconds": 1200.0}')
+        lock += f"    - path: metrics/{name}.json\n"
+    (tmp_path / "dvc.lock").write_text(lock)
+    page.write_text("About 20 min ([lock](../dvc.lock)).\n\nAbout 40 min ([lock](../dvc.lock)).\n")
     assert [p.split(" -> ")[1] for p in unbacked(page, root=tmp_path)] == [
         "'40 min' is not in dvc.lock"
     ]
