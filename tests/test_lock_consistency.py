@@ -23,6 +23,7 @@ PIPELINES = (
     "suite/scaling/dvc.yaml",
     "transit/dvc.yaml",
     "transfer/dvc.yaml",
+    "images/dvc.yaml",
 )
 
 # Edges of the suite's locks made from stores the locks no longer hold: their producers were
