@@ -17,31 +17,31 @@ from tests.conftest import REPO, cli
 FILES = ("report.md", "report.html", "summary.json")
 
 
-def report_commands() -> dict[str, list[str]]:
+PIPELINES = sorted(p.relative_to(REPO).as_posix()
+                   for p in (REPO / "dvc.yaml", *REPO.glob("*/dvc.yaml")))  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def commands() -> dict[str, list[str]]:
     """Each pipeline's report stage: its dvc.yaml's name -> the stage's command's arguments
-    (after ``mimicgen-pipe``), as DVC resolves them."""
+    (after ``mimicgen-pipe``), as DVC resolves them; read once, when a test asks."""
     from dvc.repo import Repo
 
     with Repo(str(REPO)) as repo:
-        found = {
+        return {
             s.dvcfile.relpath: shlex.split(s.cmd)[1:]
             for s in repo.index.stages
             if isinstance(s.cmd, str) and s.cmd.startswith("mimicgen-pipe report")
         }
-    return dict(sorted(found.items()))
 
 
-COMMANDS = report_commands()
+def test_every_pipeline_has_one_report_stage(commands):
+    assert sorted(commands) == PIPELINES
 
 
-def test_every_pipeline_has_one_report_stage():
-    assert set(COMMANDS) == {p.relative_to(REPO).as_posix()
-                             for p in (REPO / "dvc.yaml", *REPO.glob("*/dvc.yaml"))}  # fmt: skip
-
-
-@pytest.mark.parametrize("pipeline", list(COMMANDS))
-def test_a_committed_report_is_its_stage_run_on_the_committed_metrics(pipeline):
-    args = COMMANDS[pipeline]
+@pytest.mark.parametrize("pipeline", PIPELINES)
+def test_a_committed_report_is_its_stage_run_on_the_committed_metrics(pipeline, commands):
+    args = list(commands[pipeline])
     i = args.index("--out")
     committed = REPO / args[i + 1]
     if not (committed / "report.md").is_file():
