@@ -3,10 +3,13 @@ detection (`mkl_serv_cpu_detect`, `mkl_serv_intel_cpu`, which libtorch_cpu.so ca
 its PLT) answered by a small preloaded library, so that MKL takes the path it would take on
 another vendor's CPU; and, for comparison, with one of the CLI's pins lifted.
 
-    PYTHONPATH=$PWD .venv/bin/python lab/scripts/mkl_branch.py [--variants NAME ...]
+    PYTHONPATH=$PWD .venv/bin/python lab/scripts/mkl_branch.py [--variants NAME ...] [--vml]
 
 Needs gcc (the preloaded library is built in a temporary folder). Prints, per variant, the
-md5 DVC records for the store (``<md5>.dir``), beside quickstart/dvc.lock's.
+md5 DVC records for the store (``<md5>.dir``), beside quickstart/dvc.lock's. With ``--vml``,
+instead, per shim variant and float32 operation of the data path (1,000,000 values in
+[-1, 1), their absolute value for sqrt), how many results differ from the correctly rounded
+one (float64 numpy, rounded once to float32).
 """
 
 from __future__ import annotations
@@ -45,6 +48,18 @@ VARIANTS = {
     "openblas_native": (None, "del arithmetic.PINNED['OPENBLAS_CORETYPE']"),
     "numpy_avx512": (None, "arithmetic.NUMPY_DISABLED = ()"),
 }
+VML = """
+from mimicgen_pipe.run import arithmetic
+arithmetic.pin()
+import numpy as np, torch
+x = torch.rand(1_000_000, generator=torch.Generator().manual_seed(0)) * 2 - 1
+for op, exact in (("sin", np.sin), ("cos", np.cos), ("acos", np.arccos), ("tanh", np.tanh),
+                  ("sqrt", np.sqrt)):
+    xi = x.abs() if op == "sqrt" else x
+    y = getattr(torch, op)(xi).numpy().view(np.int32).astype(np.int64)
+    r = exact(xi.numpy().astype(np.float64)).astype(np.float32).view(np.int32).astype(np.int64)
+    print(f"  {op}: {np.count_nonzero(y != r)} of {y.size} off by up to {abs(y - r).max()} ulp")
+"""
 STAGE = """
 import sys
 from mimicgen_pipe.run import arithmetic
@@ -57,11 +72,21 @@ sys.exit(cli.main(sys.argv[1:]))
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--vml", action="store_true", help="the operations alone, per shim variant")
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="mkl_branch_"))
     (work / "shim.c").write_text(SHIM)
     shim = work / "libshim.so"
     subprocess.run(["gcc", "-O2", "-shared", "-fPIC", "-o", shim, work / "shim.c"], check=True)
+    if args.vml:
+        for name in args.variants:
+            env_add, _ = VARIANTS[name]
+            env = dict(os.environ, PYTHONPATH=str(REPO))
+            if env_add is not None:
+                env |= env_add | {"LD_PRELOAD": str(shim)}
+            print(name, flush=True)
+            subprocess.run([sys.executable, "-c", VML], env=env, cwd=REPO, check=True)
+        return
     lock = yaml.safe_load((REPO / "quickstart/dvc.lock").read_text())["stages"]["source"]
     print(f"quickstart/dvc.lock: {lock['outs'][0]['md5']}")
     for name in args.variants:
