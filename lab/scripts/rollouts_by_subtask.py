@@ -7,6 +7,7 @@ after the subtask before it ended, as parse finds subtask ends in a demo).
         --policy data/policies/drawer_cleanup_D0/seed0/epoch00200.pt [more .pt] \\
         [--episodes 50] [--component most_likely] [--horizon 600] \\
         [--backend maniskill] [--robot xarm6] [--out rollouts.json]
+        [--cameras agentview eye_in_hand --image-size 64 64]   # an image policy
 
 Prints, per checkpoint, one line per subtask (episodes that ended it, and of those that ended
 the one before) and the success rate; ``--out`` writes the same and the step each episode
@@ -33,6 +34,7 @@ from mimicgen_pipe.learn.evaluation import EvalJob, Rollout, evaluate_policies, 
 from mimicgen_pipe.learn.policy import COMPONENTS
 from mimicgen_pipe.learn.training import load_rollout_policy
 from mimicgen_pipe.run.executors import stage_executor
+from mimicgen_pipe.stages import camera_renderer
 
 
 def main() -> None:
@@ -47,6 +49,8 @@ def main() -> None:
     p.add_argument("--component", default="drawn", choices=COMPONENTS)
     p.add_argument("--horizon", type=int, default=None, help="default: the task's horizon")
     p.add_argument("--out", type=Path, help="a JSON file for the counts and every episode")
+    p.add_argument("--cameras", nargs="+", default=(), help="an image policy's cameras")
+    p.add_argument("--image-size", nargs=2, type=int, metavar=("H", "W"), default=None)
     args = p.parse_args()
     if args.out is not None and args.out.exists():  # before any work; nothing is replaced
         p.error(f"--out {args.out}: already exists; remove it or name another file")
@@ -65,6 +69,7 @@ def main() -> None:
         horizon=args.horizon or spec.horizon,
         objects=spec.objects,
         term_signals=tuple(str(s.term_signal) for s in spec.subtasks[:-1]),
+        make_cameras=camera_renderer(params, args.robot, tuple(args.cameras), args.image_size),
     )
     seeds = [evaluation_seed(params.evaluate.seed, args.variant, i) for i in range(episodes)]
     executor = stage_executor(params, "evaluate")
