@@ -136,7 +136,7 @@ def run_chain(work: Path, env: dict[str, str] | None) -> dict[str, str]:
 def made_the_locks(cpuinfo: Path = Path("/proc/cpuinfo")) -> bool:
     """Whether this CPU is of the type the committed locks were made on: an AMD with AVX2 and
     FMA (EPYC Zen 3 made them; a Zen 4 and a Zen 5 with AVX-512 rebuilt their stores). MKL's
-    vector math, under torch's sin, cos, acos and tanh, runs other kernels on an Intel CPU,
+    vector math, under torch's sqrt, acos and tanh, runs other kernels on an Intel CPU,
     which no switch it has makes an AMD's (docs/workflow.md)."""
     try:
         text = cpuinfo.read_text()
