@@ -69,6 +69,13 @@ sys.exit(cli.main(sys.argv[1:]))
 """
 
 
+def _env(variant: str, shim: Path) -> dict[str, str]:
+    """The environment of ``variant``'s process: the shim preloaded where it has one."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    answers = VARIANTS[variant][0]
+    return env if answers is None else env | answers | {"LD_PRELOAD": str(shim)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
@@ -80,25 +87,17 @@ def main() -> None:
     subprocess.run(["gcc", "-O2", "-shared", "-fPIC", "-o", shim, work / "shim.c"], check=True)
     if args.vml:
         for name in args.variants:
-            env_add, _ = VARIANTS[name]
-            env = dict(os.environ, PYTHONPATH=str(REPO))
-            if env_add is not None:
-                env |= env_add | {"LD_PRELOAD": str(shim)}
             print(name, flush=True)
-            subprocess.run([sys.executable, "-c", VML], env=env, cwd=REPO, check=True)
+            subprocess.run([sys.executable, "-c", VML], env=_env(name, shim), cwd=REPO, check=True)
         return
     lock = yaml.safe_load((REPO / "quickstart/dvc.lock").read_text())["stages"]["source"]
     print(f"quickstart/dvc.lock: {lock['outs'][0]['md5']}")
     for name in args.variants:
-        env_add, edit = VARIANTS[name]
-        env = dict(os.environ, PYTHONPATH=str(REPO))
-        if env_add is not None:
-            env |= env_add | {"LD_PRELOAD": str(shim)}
         out = work / name
-        cmd = [sys.executable, "-c", STAGE.format(edit=edit), "source",
+        cmd = [sys.executable, "-c", STAGE.format(edit=VARIANTS[name][1]), "source",
                "--params", "quickstart/params.yaml", "--out", out / "source.zarr",
                "--metrics", out / "source.json"]  # fmt: skip
-        subprocess.run([str(c) for c in cmd], env=env, cwd=REPO, check=True,
+        subprocess.run([str(c) for c in cmd], env=_env(name, shim), cwd=REPO, check=True,
                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
         print(f"{name}: {dvc_dir_md5(out / 'source.zarr')}", flush=True)
 

@@ -27,7 +27,6 @@ from pathlib import Path
 import yaml
 
 REPO = Path(__file__).resolve().parents[2]
-STAGE_COUNTS = "MKL_CALLS_DIR"  # where each counted process writes its counts
 
 # Imported by every Python process started with this PYTHONPATH (the stage and its
 # children): pins as mimicgen-pipe does, then counts torch's operations until exit.
@@ -110,10 +109,9 @@ def _stage(argv: list[str], work: Path, stage: str) -> dict:
     )
     exe = Path(sys.executable).with_name("mimicgen-pipe")
     subprocess.run([str(exe), *argv], env=env, check=True, cwd=REPO)
-    ops, mkl = 0, Counter()
-    for f in counts.glob("*.json"):
-        d = json.loads(f.read_text())
-        ops += d["ops"]
+    processes = [json.loads(f.read_text()) for f in counts.glob("*.json")]
+    mkl = Counter()
+    for d in processes:
         mkl.update(d["mkl"])
     routines = Counter(
         line.split()[1].split("(")[0]
@@ -121,8 +119,8 @@ def _stage(argv: list[str], work: Path, stage: str) -> dict:
         if line.startswith("MKL_VERBOSE") and "(" in line.split()[1]
     )
     return {
-        "processes": len(list(counts.glob("*.json"))),
-        "torch_operations": ops,
+        "processes": len(processes),
+        "torch_operations": sum(d["ops"] for d in processes),
         "mkl_verbose_routines": dict(routines.most_common()),
         "operations_reaching_mkl": dict(mkl.most_common()),
     }
