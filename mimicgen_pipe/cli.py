@@ -32,6 +32,7 @@ STAGES = {
     "pose_noise": "add pose-estimation error to the source demos' object poses",
     "generate": "generate demos for one reset variant (MimicGen)",
     "coverage": "support coverage of a generated dataset's initial scenes, with heat maps",
+    "ablation": "one of the paper's generation ablations: pose_noise, generate, coverage",
     "train": "train BC-RNN policies on the source demos or a generated dataset",
     "evaluate": "roll out a training run's checkpoints in one reset variant",
     "evaluate_external": "roll out a policy trained elsewhere (robomimic, LeRobot) likewise",

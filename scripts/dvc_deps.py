@@ -46,6 +46,7 @@ PIPELINES = (
     "suite/dvc.yaml",
     "suite/robomimic/dvc.yaml",
     "suite/scaling/dvc.yaml",
+    "suite/ablations/dvc.yaml",
     "quickstart/dvc.yaml",
     "transit/dvc.yaml",
     "transfer/dvc.yaml",

@@ -185,14 +185,17 @@ def pipeline_seconds(lock: Path) -> float:
     total = 0.0
     for stage in stages:
         for out in stage.get("outs", []):
-            path = timings_file(root / out["path"])
-            if path.suffix == ".json" and path.is_file():
-                timings = json.loads(path.read_text())
-                if isinstance(timings, dict):
-                    m = root / out["path"]
-                    metrics = json.loads(m.read_text()) if m.is_file() else {}
-                    side_by_side = metrics.get("trainings_side_by_side") or 1
-                    total += float(timings.get("wall_seconds", 0.0)) / side_by_side
+            out_path = root / out["path"]
+            # a folder of metrics (an ablation run's) counts each file in it
+            folder = out_path.is_dir() and "metrics" in out_path.parts
+            for m in sorted(out_path.rglob("*.json")) if folder else [out_path]:
+                path = timings_file(m)
+                if path.suffix == ".json" and path.is_file():
+                    timings = json.loads(path.read_text())
+                    if isinstance(timings, dict):
+                        metrics = json.loads(m.read_text()) if m.is_file() else {}
+                        side_by_side = metrics.get("trainings_side_by_side") or 1
+                        total += float(timings.get("wall_seconds", 0.0)) / side_by_side
     return total
 
 

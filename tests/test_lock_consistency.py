@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -21,6 +22,7 @@ PIPELINES = (
     "suite/dvc.yaml",
     "suite/robomimic/dvc.yaml",
     "suite/scaling/dvc.yaml",
+    "suite/ablations/dvc.yaml",
     "transit/dvc.yaml",
     "transfer/dvc.yaml",
     "images/dvc.yaml",
@@ -159,3 +161,56 @@ def test_a_broken_edge_or_a_changed_param_is_found(committed):
     assert _quickstart(inconsistencies(edited)) == [
         ("quickstart/dvc.yaml", "source", "quickstart/params.yaml:source")
     ]
+
+
+def _relock_code():
+    spec = importlib.util.spec_from_file_location("relock_code", REPO / "scripts/relock_code.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_each_locks_code_deps_are_the_code_in_the_tree():
+    """Every code dep a lock records hashes as the tree's code does, so that a fresh clone's
+    `dvc repro` re-runs nothing for code alone (scripts/relock_code.py --write records them
+    after a change that moves no output)."""
+    relock = _relock_code()
+    stale = [(str(lock.relative_to(REPO)), s, d["path"]) for lock in relock.locks()
+             for s, d in relock.stale(lock)]  # fmt: skip
+    assert not stale, f"{len(stale)} code deps differ from the tree, e.g. {stale[:3]}"
+
+
+def test_relock_code_sees_an_edited_file_and_records_it_in_place(tmp_path, monkeypatch):
+    relock = _relock_code()
+    (tmp_path / "mimicgen_pipe/core").mkdir(parents=True)
+    (tmp_path / "mimicgen_pipe/core/a.py").write_text("x = 1\n")
+    (tmp_path / "mimicgen_pipe/core/__pycache__").mkdir()
+    (tmp_path / "mimicgen_pipe/core/__pycache__/a.pyc").write_bytes(b"\0")
+    monkeypatch.setattr(relock, "REPO", tmp_path)
+    relock.code_hash.cache_clear()
+    relock.file_md5.cache_clear()
+    now = relock.code_hash("mimicgen_pipe/core")
+    assert now["nfiles"] == 1 and now["md5"].endswith(".dir")
+    lock = tmp_path / "dvc.lock"
+    text = (
+        "schema: '2.0'\nstages:\n  parse:\n    cmd: mimicgen-pipe parse\n    deps:\n"
+        "    - path: data/source/x.zarr\n      hash: md5\n      md5: aaa.dir\n      size: 9\n"
+        "      nfiles: 1\n    - path: mimicgen_pipe/core\n      hash: md5\n      md5: old.dir\n"
+        "      size: 1\n      nfiles: 7\n    outs:\n    - path: data/parsed/x.zarr\n"
+        "      hash: md5\n      md5: bbb.dir\n      size: 3\n      nfiles: 1\n"
+    )
+    lock.write_text(text)
+    assert [d["path"] for _, d in relock.stale(lock)] == ["mimicgen_pipe/core"]
+    assert relock.rewrite(lock) == 1
+    assert relock.stale(lock) == []
+    after = yaml.safe_load(lock.read_text())["stages"]["parse"]
+    assert after["deps"][1] == {"path": "mimicgen_pipe/core", "hash": "md5", **now}
+    assert after["deps"][0]["md5"] == "aaa.dir" and after["outs"][0]["md5"] == "bbb.dir"
+    assert (
+        lock.read_text()
+        .replace(now["md5"], "old.dir")
+        .replace(
+            f"size: {now['size']}\n      nfiles: 1\n    outs", "size: 1\n      nfiles: 7\n    outs"
+        )
+        == text
+    )

@@ -72,8 +72,8 @@ def test_a_bare_repro_runs_the_default_pipeline_only(graph):
     assert not outside, f"the default pipeline pulls in: {outside}"
     for other in ("quickstart/dvc.yaml", "transit/dvc.yaml"):
         assert {s.relpath for s in considered(graph, other)} == {other}
-    # the suite's report reads its two studies, each a pipeline of its own on its stores
-    studies = {"suite/robomimic/dvc.yaml", "suite/scaling/dvc.yaml"}
+    # the suite's report reads its three studies, each a pipeline of its own on its stores
+    studies = {"suite/robomimic/dvc.yaml", "suite/scaling/dvc.yaml", "suite/ablations/dvc.yaml"}
     assert {s.relpath for s in considered(graph, "suite/dvc.yaml")} == {"suite/dvc.yaml"} | studies
     for study in studies:
         assert {s.relpath for s in considered(graph, study)} == {study, "suite/dvc.yaml"}
@@ -100,6 +100,9 @@ def test_the_counts_of_two_common_ablations(graph):
         for s in ("generate", "coverage", "train", "evaluate", "export", "render")
         for v in ("D0", "D1")
     } | {"report", "observe", "export_observed"}
+    # every ablation run starts from the pipeline's generation settings
+    runs = yaml.safe_load((REPO / "params.yaml").read_text())["ablations"]["runs"]
+    main |= {f"ablation@{run}" for run in runs}
     assert selection == main  # robot transfer is a pipeline of its own
     assert rerun(graph, "train.profile") == {
         "train_source",

@@ -180,7 +180,7 @@ def test_params_with_task_stack_read_no_stack_cube_metrics(tmp_path):
         "--paper", str(PAPER), "--out", "report", cwd=tmp_path)  # fmt: skip
     md = (tmp_path / "report/report.md").read_text()
     # no run of stack was trained, evaluated or ablated: stack_cube's are not taken for it
-    assert "## Policy success rate" not in md and "ablations" not in md.lower()
+    assert "## Policy success rate" not in md and "## Ablations" not in md
     dgr = md.split("## Data generation rate")[1].split("## ")[0]
     assert rows_of(dgr, "| D0 | missing |", "| D1 | missing |") == rows_of(dgr, "| D")
     assert "Robot transfer" not in md  # robot transfer's own pipeline reports it
@@ -309,7 +309,7 @@ def test_report_shows_missing_metrics_and_never_invents_rows():
     assert "63.3 (Table M.2, Stack D1) [no NN + no per-subtask]" in d1[0]  # our settings' row
     assert "Heat maps for D0: missing." in md
     # no policy trained or evaluated, no ablation run saved: no such sections
-    assert "## Policy success rate" not in md and "ablations" not in md.lower()
+    assert "## Policy success rate" not in md and "## Ablations" not in md
 
     ev = m("evaluate", "stack_cube", "D1", data="D1", success_rate_max=96.0,
            success_rate_max_std=1.5, success_rate_last=90.0, success_rate_last_std=2.0,
@@ -346,6 +346,8 @@ def test_report_ablations_show_deltas_against_the_base_and_the_papers_direction(
     ]
     paper = load_paper_results(PAPER)
     blocks = build_report(Params(), STACK_CUBE, MetricsSet(()), runs, paper, {}, {}, ())
+    at = blocks.index(Heading(2, "Ablations"))
+    assert "(`dvc.yaml`: `ablation@<run>`, one per run of `ablations.runs`" in blocks[at + 1].text
     tables = [b for b in blocks if isinstance(b, Table)]
     ablation = next(t for t in tables if t.columns[0] == "run")
     rows = {r[0]: r for r in ablation.rows}
@@ -845,9 +847,9 @@ def test_suite_ablations_compare_with_their_own_default_run():
         run("pose_noise_L2", l2, 29.5),
     ]
     blocks = suite_ablation_blocks("pull_cube_tool", "Hammer Cleanup", runs, paper)
-    heading = "Made outside the pipeline: ablations on pull_cube_tool (Hammer Cleanup)"
-    assert blocks[0] == Heading(2, heading)
-    assert "benchmarks/ablations.py" in blocks[1].text and "outside the pipeline" in blocks[1].text
+    assert blocks[0] == Heading(2, "Ablations on pull_cube_tool (Hammer Cleanup)")
+    assert "`suite/ablations/dvc.yaml`: `ablation_suite@pull_cube_tool-<run>`" in blocks[1].text
+    assert "`suite/metrics/ablations/pull_cube_tool/<run>/`" in blocks[1].text
     rows = {r[0]: r for r in blocks[-1].rows}
     assert rows["default"][1] == "(base)"
     assert rows["action_noise_0"][1:6] == (
@@ -1039,3 +1041,41 @@ def test_the_outside_learner_sits_beside_ours_with_raw_and_normalized_observatio
     )  # fmt: skip
     none = replace(params, suite=replace(params.suite, robomimic_tasks=[]))
     assert outside_learner_blocks(none, specs, MetricsSet((ours,)), robomimic, paper) == []
+
+
+def test_the_report_says_which_cpu_made_which_results(tmp_path):
+    """Each metrics file's CPU comes from its timings file; one line when they agree, a table
+    of the types otherwise, a folder of one type folded into one entry; a stage that times
+    nothing (no timings file) is not listed, and a run without a recorded CPU says so."""
+    from mimicgen_pipe.report.machines import NOT_RECORDED, machine_blocks, read_machines
+
+    zen4 = {"vendor": "AuthenticAMD", "model_name": "AMD EPYC", "family": 25, "model": 17,
+            "flags": ["avx2", "fma"]}  # fmt: skip
+    zen5 = dict(zen4, family=26, model=2)
+    files = {
+        "generate_x_D0": zen4, "train_x_D0": zen4, "evaluate_x_D0_on_D0": zen4,
+        "ablations/a/generate_x_D1": zen5, "ablations/b/generate_x_D1": zen5,
+        "export_x_D0": None,
+    }  # fmt: skip
+    for name, cpu in files.items():
+        (tmp_path / "metrics" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "metrics" / f"{name}.json").write_text("{}")
+        (tmp_path / "timings" / name).parent.mkdir(parents=True, exist_ok=True)
+        timing = {"wall_seconds": 1.0} | ({"cpu": cpu} if cpu else {})
+        (tmp_path / "timings" / f"{name}.json").write_text(json.dumps(timing))
+    (tmp_path / "metrics/coverage_x_D0.json").write_text("{}")  # times nothing
+    (tmp_path / "metrics/benchmarks").mkdir()
+    (tmp_path / "metrics/benchmarks/speed.json").write_text("{}")
+    machines = read_machines(tmp_path / "metrics")
+    assert set(machines) == set(files)
+    assert machines["export_x_D0"] == NOT_RECORDED
+    assert machines["train_x_D0"] == (
+        "AMD EPYC (AuthenticAMD family 25 model 17; avx2, fma)"
+    )  # fmt: skip
+    rows = machine_blocks(machines)[-1].rows
+    assert rows[0] == (machines["train_x_D0"], "the other 3 files")
+    assert rows[1] == (machines["ablations/a/generate_x_D1"], "`ablations/` (2 files)")
+    assert rows[2] == (NOT_RECORDED, "`export_x_D0`")
+    one = machine_blocks({k: v for k, v in machines.items() if v == machines["train_x_D0"]})
+    assert one[-1] == Text(f"Every result here (3 files) was made on {machines['train_x_D0']}.")
+    assert machine_blocks({}) == []

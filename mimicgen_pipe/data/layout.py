@@ -60,8 +60,15 @@ def plots_dir() -> Path:
 
 
 def ablations_dir() -> Path:
-    """Saved ablation runs: one folder per run with its params.yaml and metrics JSON files."""
+    """Ablation runs (the ablation stages): one folder per run with its params.yaml and
+    metrics JSON files."""
     return metrics_dir() / "ablations"
+
+
+def ablation_stores(run: str) -> Path:
+    """An ablation run's stores (the ablation stage): pose-noised, kept and failed, coverage
+    table and heat maps."""
+    return _at(Path("data/ablations") / run)
 
 
 def generated_store(task: str, variant: str, failed: bool = False) -> Path:

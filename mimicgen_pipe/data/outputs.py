@@ -159,6 +159,7 @@ def directory_kind(name: str, pattern: str) -> OutputKind:
 
 METRICS = OutputKind("metrics JSON", _json_object)
 TABLE = OutputKind("CSV table", _text_table)
+TEXT = OutputKind("text file", _text_table)
 PNG = OutputKind("PNG image", _png)
 _BY_SUFFIX = {".zarr": store_kind(), ".json": METRICS, ".csv": TABLE, ".png": PNG}
 

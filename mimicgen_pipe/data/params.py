@@ -311,7 +311,8 @@ class SuiteParams:
     with D0 policy data (in policy_data), on whose 1000 D0 demos robomimic 0.3.0's
     own BC-RNN also trains at our profile's size, with and without its observation
     normalisation (an outside learner beside ours). scaling: the dataset-size comparison
-    (ScalingParams)."""
+    (ScalingParams). ablation_tasks: tasks on which every run of ``ablations.runs`` is
+    made (suite/ablations/dvc.yaml), from the suite's base (its action noise)."""
 
     backend: str = "maniskill"
     tasks: list[str] = field(default_factory=lambda: ["pull_cube_tool", "place_sphere"])
@@ -327,6 +328,34 @@ class SuiteParams:
     evaluations: dict[str, Evaluation] = field(default_factory=dict)
     robomimic_tasks: list[str] = field(default_factory=list)
     scaling: ScalingParams = field(default_factory=ScalingParams)
+    ablation_tasks: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class AblationRun:
+    """One named generation ablation (the ablation stage): ``what`` it measures, in the
+    paper's words and table, and ``changes``, the generate and pose_noise keys it sets over
+    the pipeline's own (e.g. ``{generate: {action_noise: 0.0}}``; empty: the base run)."""
+
+    what: str
+    changes: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class AblationParams:
+    """The paper's generation ablations as stages (dvc.yaml: ablation@<run>): each run of
+    ``runs`` is pose_noise -> generate -> coverage with the pipeline's params and the run's
+    changes, exactly ``attempts`` attempts on reset variant ``variant``, every run with the
+    same attempt seeds unless it changes generate.seed (so that runs see the same scenes)."""
+
+    variant: str = "D1"
+    attempts: int = 200
+    runs: dict[str, AblationRun] = field(default_factory=dict)
+
+
+# what an ablation run may change: the keys of the stages it runs, but not the variant, mode
+# and attempts that every run shares (ablations.variant, ablations.attempts)
+ABLATION_KEYS = {"generate": ("variants", "mode", "max_attempts", "num_demos"), "pose_noise": ()}
 
 
 @dataclass(frozen=True)
@@ -350,6 +379,7 @@ class Params:
     observe: ObserveParams = field(default_factory=ObserveParams)
     ray: RayParams = field(default_factory=RayParams)
     maniskill: ManiSkillParams = field(default_factory=ManiSkillParams)
+    ablations: AblationParams = field(default_factory=AblationParams)
 
 
 _RANGES: dict[str, tuple[float, float]] = {
@@ -416,6 +446,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "suite.scaling.demos": (1, 10_000_000),
     "suite.scaling.num_demos": (1, 10_000_000),  # each entry
     "suite.scaling.max_attempts": (1, 10_000_000),
+    "ablations.attempts": (1, 10_000_000),
 }
 
 
@@ -526,6 +557,7 @@ _CHECKS: dict[str, Callable[[Any], str | None]] = {
     "suite.policy_tasks": _non_empty_unique,
     "planned_transit.tasks": _non_empty_unique,
     "suite.variants": _non_empty_unique,
+    "suite.ablation_tasks": _unique,
     "suite.scaling.num_demos": _increasing,
 }
 
@@ -538,6 +570,8 @@ def _describe(tp: Any) -> str:
         return " or ".join(_describe(a) for a in typing.get_args(tp))
     if origin is list:
         return f"a list of {_describe(typing.get_args(tp)[0])}"
+    if origin is dict:
+        return "a mapping"
     return {
         int: "an integer",
         float: "a number",
@@ -555,6 +589,8 @@ def _check(value: Any, tp: Any) -> bool:
         return any(_check(value, a) for a in typing.get_args(tp))
     if origin is list:
         return isinstance(value, list) and all(_check(v, typing.get_args(tp)[0]) for v in value)
+    if origin is dict:
+        return isinstance(value, dict)
     if tp is float:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
     if tp is int:
@@ -592,7 +628,8 @@ def _build(cls: type, raw: Any, where: str, path: Path) -> Any:
         if dataclasses.is_dataclass(tp):
             kwargs[name] = _build(tp, value, key, path)
             continue
-        if typing.get_origin(tp) is dict:  # named cells, each a section of its own
+        if typing.get_origin(tp) is dict and dataclasses.is_dataclass(typing.get_args(tp)[1]):
+            # named cells, each a section of its own
             if not isinstance(value, dict):
                 raise InputError(f"{path}: {key}: expected a mapping of named cells, got "
                                  f"{_short(value)}")  # fmt: skip
@@ -648,7 +685,57 @@ def load_params(path: str | Path = "params.yaml") -> Params:
             f"{path}: no stage sections; expected at least one of {sections} "
             "(the repository's params.yaml lists every key)"
         )
-    return _build(Params, raw, "", path)
+    params = _build(Params, raw, "", path)
+    for name in params.ablations.runs:  # every run's params valid before any work
+        ablation_params(params, name, path)
+    return params
+
+
+def ablation_params(params: Params, name: str, path: str | Path = "params.yaml") -> Params:
+    """The params of ablation run ``name`` of ``params.ablations`` (read from ``path``):
+    its changes over ``params``, on the section's variant and fixed attempts; InputError
+    naming the run's key for a change it may not make or a value the key does not take."""
+    a = params.ablations
+    if name not in a.runs:
+        raise InputError(
+            f"{path}: ablations.runs: no run {name!r} (runs: {', '.join(a.runs) or 'none'})"
+        )
+    where = f"ablations.runs.{name}.changes"
+    changes = dict(a.runs[name].changes)
+    for section, change in changes.items():
+        if section not in ABLATION_KEYS:
+            raise InputError(
+                f"{path}: {where}.{section}: an ablation changes only "
+                f"{' and '.join(ABLATION_KEYS)} (the stages it runs)"
+            )
+        if not isinstance(change, dict):
+            raise InputError(f"{path}: {where}.{section}: expected a mapping, got {_short(change)}")
+        shared = sorted(set(change) & set(ABLATION_KEYS[section]), key=str)
+        if shared:
+            raise InputError(
+                f"{path}: {where}.{section}.{shared[0]}: every run shares it "
+                "(ablations.variant and ablations.attempts set it)"
+            )
+    shared = {"variants": [a.variant], "mode": "fixed_attempts", "max_attempts": a.attempts}
+    changes["generate"] = changes.get("generate", {}) | shared
+    sections = {}
+    for section, change in changes.items():
+        tp = typing.get_type_hints(Params)[section]
+        raw = _merged(as_dict(getattr(params, section)), change)
+        try:
+            sections[section] = _build(tp, raw, section, Path(path))
+        except InputError as e:  # name the run's key
+            raise InputError(str(e).replace(f"{path}: ", f"{path}: {where}.", 1)) from None
+    return dataclasses.replace(params, **sections)
+
+
+def _merged(base: dict[str, Any], change: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``change``'s keys set, section by section."""
+    out = dict(base)
+    for key, value in change.items():
+        both = isinstance(value, dict) and isinstance(out.get(key), dict)
+        out[key] = _merged(out[key], value) if both else value
+    return out
 
 
 def with_overrides(

@@ -2,7 +2,7 @@
 and data.
 
 Built only from what is present: every number in them comes from a metrics file (selected
-by the identity fields every stage writes, mimicgen_pipe.data.metrics), a saved ablation run, or
+by the identity fields every stage writes, mimicgen_pipe.data.metrics), an ablation run, or
 the paper's numbers file (each with the table it was read from). A metric that was not
 produced is written ``missing``; no row is made up. A coverage, training or evaluation of
 another generate run than the one shown beside it is marked, never mixed in silently.
@@ -91,7 +91,7 @@ def build_suite_report(
     robomimic: MetricsSet,
 ) -> list[Block]:
     """The task suite's report (params suite.*). ``specs``: the suite's tasks; ``ms``: its
-    metrics folder; ``ablations``: task -> its saved ablation runs; ``scaling_ms``: the
+    metrics folder; ``ablations``: task -> its ablation runs; ``scaling_ms``: the
     dataset-size comparison's metrics folder, ``figures``: its figure where drawn
     (mimicgen_pipe.report.scaling); ``profiles``: the tasks, run -> metrics folder and
     run -> how it was made, of D0 policies under other training profiles, made outside the
@@ -108,10 +108,10 @@ def build_suite_report(
         *suite.two_arm_blocks(params, specs, ms),
         *scaling_blocks(params, scaling_ms, figures),
     ]
-    # what no stage makes comes last, each section saying so
     for spec in specs:
         if ablations.get(spec.name):
             blocks += suite_ablation_blocks(spec.name, spec.paper_task, ablations[spec.name], paper)
+    # what no stage makes comes last, saying so
     return blocks + profile_blocks(params, profiles[0], profiles[1], paper, profiles[2])
 
 
@@ -148,7 +148,7 @@ class ReportJob:
     -> PNG bytes), the ``figures`` written beside it (file name -> PNG bytes) and its
     headline numbers ``summary`` (None: none), made from ``metrics_files`` metrics files of
     the folder ``metrics_dir`` (with the heat maps and curves of ``plots_dir``) and
-    ``ablation_runs`` saved ablation runs; written as the report folder ``out``."""
+    ``ablation_runs`` ablation runs; written as the report folder ``out``."""
 
     title: str
     blocks: tuple[Block, ...]

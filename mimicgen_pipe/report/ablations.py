@@ -1,5 +1,6 @@
-"""Saved ablation runs (benchmarks/ablations.py): each run's DGR and coverage against its
-base run, beside the same change in the paper's tables, and the spread over seeds."""
+"""Ablation runs (the ablation stages, params.yaml's ``ablations``): each run's DGR and
+coverage against its base run, beside the same change in the paper's tables, and the spread
+over seeds."""
 
 from __future__ import annotations
 
@@ -23,11 +24,11 @@ from mimicgen_pipe.report.inputs import OTHER_RUN, Run, of_other_run, other_run_
 from mimicgen_pipe.report.paper import METRIC_LABELS, PaperResults, paper_deltas
 from mimicgen_pipe.report.settings import changed_settings, method_settings
 
-# what the sections of saved runs say first: no stage makes them
-MADE_BY_HAND = (
-    "`benchmarks/ablations.py` made these runs by hand, outside the pipeline (each run's params "
-    "and metrics under `ablations/<run>/` of the metrics folder): `dvc repro` neither remakes "
-    "nor checks them."
+# what the sections say first: which stages made the runs
+MADE_BY = (
+    "The ablation stages made these runs (`{dvc_file}`: `{stage}`, one per run of "
+    "`ablations.runs` in `{params_file}`; each run's params and metrics under "
+    "`{folder}<run>/`): `dvc repro` remakes them."
 )
 
 
@@ -37,21 +38,27 @@ def ablation_blocks(
     settings: Mapping[str, Any],
     ablations: Sequence[Run],
     paper: PaperResults,
-    heading: str = "Made outside the pipeline: ablations",
+    heading: str = "Ablations",
     base_settings_are: str = "this run's",
+    made_by: str = MADE_BY.format(
+        dvc_file="dvc.yaml",
+        stage="ablation@<run>",
+        params_file="params.yaml",
+        folder="metrics/ablations/",
+    ),
 ) -> list[Block]:
-    """Every saved run of ``task`` (its params' task) against the one with ``settings``; no
-    section when none was saved (a pipeline that makes none, such as the quickstart)."""
+    """Every ablation run of ``task`` (its params' task) against the one with ``settings``;
+    no section when there is none (a pipeline that makes none, such as the quickstart)."""
     ablations = [r for r in ablations if r.params.task == task]
     if not ablations:
         return []
-    blocks: list[Block] = [Heading(2, heading), Text(MADE_BY_HAND)]
+    blocks: list[Block] = [Heading(2, heading), Text(made_by)]
     runs = [(r, method_settings(r.params)) for r in ablations]
     base = [(r, s) for r, s in runs if not changed_settings(settings, s)]
     if not base:
         return blocks + [
             Text(
-                "No saved ablation run has this run's generation settings, so no deltas: "
+                "No ablation run has this run's generation settings, so no deltas: "
                 f"{MISSING}. Runs saved: " + ", ".join(r.name for r in ablations) + "."
             )
         ]
@@ -189,18 +196,24 @@ def _pooled(values: Sequence[Mapping[str, Any]]) -> tuple[int, int] | None:
 def suite_ablation_blocks(
     task: str, paper_task: str, runs: Sequence[Run], paper: PaperResults
 ) -> list[Block]:
-    """A suite task's saved ablation runs (benchmarks/ablations.py --task), each against the
-    one of them named ``default``, whose settings are the base (they may differ from
-    params.yaml's, e.g. a lower action noise)."""
+    """A suite task's ablation runs (suite/dvc.yaml: ablation_suite), each against the one of
+    them named ``default``, whose settings are the base (the suite's, e.g. its lower action
+    noise, not params.yaml's)."""
     base = next((r for r in runs if r.name == "default"), None)
-    heading = f"Made outside the pipeline: ablations on {task} ({paper_task})"
+    heading = f"Ablations on {task} ({paper_task})"
+    made_by = MADE_BY.format(
+        dvc_file="suite/ablations/dvc.yaml",
+        stage=f"ablation_suite@{task}-<run>",
+        params_file="suite/params.yaml",
+        folder=f"suite/metrics/ablations/{task}/",
+    )
     if base is None:
         names = ", ".join(r.name for r in runs) or "none"
         return [
             Heading(2, heading),
-            Text(MADE_BY_HAND),
-            Text(f"No saved run named `default` to compare with: {MISSING} (runs: {names})."),
+            Text(made_by),
+            Text(f"No run named `default` to compare with: {MISSING} (runs: {names})."),
         ]
     return ablation_blocks(
-        task, paper_task, method_settings(base.params), runs, paper, heading, "its own"
+        task, paper_task, method_settings(base.params), runs, paper, heading, "its own", made_by
     )

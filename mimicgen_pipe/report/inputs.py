@@ -1,5 +1,5 @@
 """What the report reads: the metrics files of a folder, selected by their identity fields
-(mimicgen_pipe.data.metrics), saved ablation runs, heat maps and the render stage's videos."""
+(mimicgen_pipe.data.metrics), ablation runs, heat maps and the render stage's videos."""
 
 from __future__ import annotations
 

@@ -83,11 +83,13 @@ def episode_count(text: str) -> int:
 
 
 def check_variants(params: Params, path: str) -> None:
-    """InputError naming generate.variants when the main task lacks one of its reset
-    variants (the suite's and robot transfer's lists: the check stage of their pipelines)."""
-    check_variant_lists(
-        [("generate.variants", params.backend, params.task, params.generate.variants)], path
-    )
+    """InputError naming generate.variants (or ablations.variant) when the main task lacks
+    one of its reset variants (the suite's and robot transfer's lists: the check stage of
+    their pipelines)."""
+    lists = [("generate.variants", params.backend, params.task, params.generate.variants)]
+    if params.ablations.runs:
+        lists += [("ablations.variant", params.backend, params.task, [params.ablations.variant])]
+    check_variant_lists(lists, path)
 
 
 def check_variant_lists(lists: list[tuple[str, str, str, list[str]]], path: str) -> None:

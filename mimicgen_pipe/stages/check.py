@@ -50,8 +50,9 @@ def check_suite(params: Params, path: str) -> None:
     """The suite's rules (suite/params.yaml): InputError naming the key when a suite task
     with policies or the scaling task is not a suite task (or, with policies, is listed
     twice), a policy cell is wrong (:func:`check_policy_cells`), a task of
-    suite.robomimic_tasks has no D0 policy data, or a suite task (suite.variants,
-    suite.object_transfer, the scaling task's variant) lacks a listed reset variant."""
+    suite.robomimic_tasks has no D0 policy data, a task of suite.ablation_tasks is not a
+    suite task, or a suite task (suite.variants, suite.object_transfer, the scaling task's
+    variant, the ablation tasks' ablations.variant) lacks a listed reset variant."""
     u = params.suite
     seen: set[str] = set()
     for key in ("suite.policy_tasks", "suite.d0_policy_tasks", "suite.seeded_policy_tasks"):
@@ -77,6 +78,10 @@ def check_suite(params: Params, path: str) -> None:
     lists += [("suite.object_transfer", u.backend, task, ["O1"]) for task in u.object_transfer]
     if scaling.task is not None:
         lists += [("suite.scaling.variant", u.backend, scaling.task, [scaling.variant])]
+    for task in u.ablation_tasks:
+        if task not in u.tasks:
+            raise InputError(f"{path}: suite.ablation_tasks: {task!r} is not in suite.tasks")
+        lists += [("ablations.variant", u.backend, task, [params.ablations.variant])]
     check_variant_lists(lists, path)
 
 

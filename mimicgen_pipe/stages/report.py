@@ -35,6 +35,7 @@ from mimicgen_pipe.report.inputs import (
     read_metrics_folder,
     read_runs,
 )
+from mimicgen_pipe.report.machines import machine_blocks, read_machines
 from mimicgen_pipe.report.outside import ROBOMIMIC
 from mimicgen_pipe.report.paper import PaperResults, load_paper_results
 from mimicgen_pipe.report.profiles import read_made_by, read_profile_runs
@@ -92,7 +93,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--ablations",
-        help="saved ablation runs, one folder each with params.yaml and metrics JSON files "
+        help="ablation runs, one folder each with params.yaml and metrics JSON files "
         "(default: <metrics>/ablations; with --suite one folder of runs per task in it)",
     )
     p.add_argument(
@@ -158,6 +159,9 @@ def resolve(args: argparse.Namespace) -> ReportJob:
         blocks = build_report(params, spec, ms, ablations_run, paper, names, media, list(figures))
         summary = headline_numbers(params, ms)
         title, runs = f"MimicGen on {params.task}", len(ablations_run)
+    # last, in every report: the CPU types its results were made on (their timings files,
+    # which no stage declares: they change at every run)
+    blocks = [*blocks, *machine_blocks(read_machines(metrics_dir))]
     return ReportJob(title, tuple(blocks), images, figures, summary, len(ms.files), runs,
                      metrics_dir, plots_dir, out)  # fmt: skip
 
