@@ -66,7 +66,7 @@ def resolve(args: argparse.Namespace) -> AblationJob:
     backends.check_variant(spec, a.variant)
     parsed = Path(args.parsed or layout.parsed_store(params.task))
     read_store(parsed, kind="parsed", task=params.task)
-    work = Path(args.work) if args.work else layout.ablation_stores(args.run)
+    work = output_path(args.work, layout.ablation_stores(args.run))
     out = output_path(args.out, layout.ablations_dir() / args.run)
     # the params file as given, with the run's task, back end and the two sections it may
     # change; without the list of runs: the run is one
