@@ -27,6 +27,7 @@ fenced code blocks and inline `code` spans:
    studies in its folder (the suite's ``suite/<study>/dvc.lock``), which its report reads.
    A training's ``wall_seconds`` is divided by the trainings that ran side by side with it
    (``trainings_side_by_side`` of its metrics), so that their shared hours count once.
+   It may also be the pipeline's longest chain (``chain_seconds``).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ import pytest
 import yaml
 
 from mimicgen_pipe.data.metrics import timings_file
+from tests.test_lock_consistency import PIPELINES, _wdirs
 
 # the suite's lock is large: libyaml's loader reads it in a fraction of the pure-Python time
 _Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
@@ -163,40 +165,131 @@ def prose(block: str) -> str:
 
 @functools.cache
 def numbers_in(path: Path) -> list[float]:
-    """Every number written in ``path`` (a ``dvc.lock``: its pipeline's whole time), sorted."""
+    """Every number written in ``path`` (a ``dvc.lock``: its pipeline's whole time and its
+    longest chain's), sorted."""
     if path.name == "dvc.lock":
-        return [pipeline_seconds(path)]
+        return sorted({pipeline_seconds(path), max(chain_seconds(path).values())})
     return sorted(float(n) for n in FILE_NUMBER.findall(path.read_text()))
 
 
-@functools.cache
-def pipeline_seconds(lock: Path) -> float:
-    """The sum of ``wall_seconds`` over the timings files of the metrics files ``lock``
-    records as outputs, and the locks of a sub-pipeline's studies (rule 5)."""
-    root = lock.parent
+def _root(path: Path) -> Path:
+    root = path.resolve().parent
     while not (root / ".git").exists() and root != root.parent:
         root = root.parent
-    studies = sorted(lock.parent.glob("*/dvc.lock")) if lock.parent != root else []
-    stages = [
-        body
-        for one in (lock, *studies)
-        for body in yaml.load(one.read_text(), Loader=_Loader)["stages"].values()
-    ]
+    return root
+
+
+def _pipeline_locks(lock: Path) -> list[Path]:
+    """``lock`` and the locks of its pipeline's studies (``suite/<study>/dvc.lock``),
+    resolved."""
+    lock = lock.resolve()
+    studies = sorted(lock.parent.glob("*/dvc.lock")) if lock.parent != _root(lock) else []
+    return [lock, *studies]
+
+
+def _stages(lock: Path) -> dict[str, dict]:
+    return yaml.load(lock.read_text(), Loader=_Loader)["stages"]
+
+
+def stage_seconds(wdir: Path, stage: dict) -> float:
+    """One stage's time: ``wall_seconds`` over the timings files of the metrics files its lock
+    entry records as outputs (paths from ``wdir``), a training's divided by its trainings
+    side by side (rule 5)."""
     total = 0.0
-    for stage in stages:
-        for out in stage.get("outs", []):
-            out_path = root / out["path"]
-            # a folder of metrics (an ablation run's) counts each file in it
-            folder = out_path.is_dir() and "metrics" in out_path.parts
-            for m in sorted(out_path.rglob("*.json")) if folder else [out_path]:
-                path = timings_file(m)
-                if path.suffix == ".json" and path.is_file():
-                    timings = json.loads(path.read_text())
-                    if isinstance(timings, dict):
-                        metrics = json.loads(m.read_text()) if m.is_file() else {}
-                        side_by_side = metrics.get("trainings_side_by_side") or 1
-                        total += float(timings.get("wall_seconds", 0.0)) / side_by_side
+    for out in stage.get("outs", []):
+        out_path = wdir / out["path"]
+        # a folder of metrics (an ablation run's) counts each file in it
+        folder = out_path.is_dir() and "metrics" in out_path.parts
+        for m in sorted(out_path.rglob("*.json")) if folder else [out_path]:
+            path = timings_file(m)
+            if path.suffix == ".json" and path.is_file():
+                timings = json.loads(path.read_text())
+                if isinstance(timings, dict):
+                    metrics = json.loads(m.read_text()) if m.is_file() else {}
+                    side_by_side = metrics.get("trainings_side_by_side") or 1
+                    total += float(timings.get("wall_seconds", 0.0)) / side_by_side
     return total
+
+
+Stage = tuple[Path, str]  # (its lock, its name)
+
+
+@dataclasses.dataclass(frozen=True)
+class Locks:
+    """Every pipeline's lock under one root, as a graph of stages."""
+
+    wdir: dict[Stage, Path]  # where a stage runs: its paths are relative to it
+    body: dict[Stage, dict]  # its lock entry
+    producer: dict[Path, Stage]  # an output's absolute path -> the stage that writes it
+
+    def seconds(self, key: Stage) -> float:
+        return stage_seconds(self.wdir[key], self.body[key])
+
+    def upstream(self, key: Stage, seen: set[Stage]) -> set[Stage]:
+        """``seen`` with ``key`` and every stage upstream of it added."""
+        if key not in seen:
+            seen.add(key)
+            for dep in self.body[key].get("deps") or ():
+                path = (self.wdir[key] / dep["path"]).resolve()
+                # a dep inside an output folder (a store's file) is that folder's
+                up = next(
+                    (self.producer[p] for p in (path, *path.parents) if p in self.producer), None
+                )
+                if up is not None:
+                    self.upstream(up, seen)
+        return seen
+
+
+@functools.cache
+def all_locks(root: Path) -> Locks:
+    """The locks of ``PIPELINES`` under ``root`` that exist."""
+    wdir: dict[Stage, Path] = {}
+    body: dict[Stage, dict] = {}
+    producer: dict[Path, Stage] = {}
+    for dvc_file in PIPELINES:
+        lock = (root / dvc_file).with_name("dvc.lock").resolve()
+        if not lock.is_file():
+            continue
+        wdirs = _wdirs(root / dvc_file) if (root / dvc_file).is_file() else {}
+        for name, entry in _stages(lock).items():
+            key = (lock, name)
+            wdir[key] = wdirs.get(name.split("@")[0], lock.parent)
+            body[key] = entry
+            for out in entry.get("outs") or ():
+                producer[(wdir[key] / out["path"]).resolve()] = key
+    return Locks(wdir, body, producer)
+
+
+def pipeline_seconds(lock: Path) -> float:
+    """The sum of ``stage_seconds`` over the stages of ``lock`` and of its pipeline's
+    studies (rule 5)."""
+    graph = all_locks(_root(lock))
+    return sum(graph.seconds((one, name)) for one in _pipeline_locks(lock) for name in _stages(one))
+
+
+@functools.cache
+def chain_seconds(lock: Path) -> dict[str, float]:
+    """Each chain of ``lock``'s pipeline -> its time: the ``stage_seconds`` of its stages and
+    of every stage upstream of them, in any pipeline's lock, each counted once. The suite's
+    chains are its tasks, per pipeline file (``suite/robomimic/dvc.yaml``'s stages of a task
+    are one chain, the suite's own stages of that task another; a stage's task is its matrix
+    key up to the first ``-``; its report, which reads every task, is no task's); every
+    other pipeline is one chain."""
+    root = _root(lock)
+    graph = all_locks(root)
+    per_task = lock.resolve().parent.relative_to(root).as_posix() == "suite"
+    chains: dict[str, set[Stage]] = {}
+    for one in _pipeline_locks(lock):
+        folder = one.parent.relative_to(root).as_posix()
+        for name in _stages(one):
+            if not per_task:
+                chain = folder
+            elif "@" in name:
+                chain = f"{folder}:{name.split('@')[1].split('-')[0]}"
+            else:
+                continue
+            graph.upstream((one, name), chains.setdefault(chain, set()))
+    return {chain: sum(map(graph.seconds, keys)) for chain, keys in chains.items()}
 
 
 def _near(values: list[float], x: float, tol: float) -> bool:
@@ -353,3 +446,69 @@ def test_changing_one_number_of_results_md_is_caught() -> None:
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
 def test_every_result_number_is_in_a_file_its_block_cites(page: Path) -> None:
     assert unbacked(page) == []
+
+
+def _suite(tmp_path: Path, seconds: dict[str, float]) -> Path:
+    """A repository whose suite has a source stage per task, a train stage per task reading
+    it, a report reading both trainings, and a study whose stage of task ``a`` reads ``a``'s
+    source: each stage's metrics file with ``seconds[stage]`` in its timings file."""
+    (tmp_path / ".git").mkdir()
+    for folder, stages in {
+        "suite": {
+            "source@a": [], "source@b": [], "train@a-D0": ["data/a"], "train@b-D0": ["data/b"],
+            "report": ["data/a-D0", "data/b-D0"],
+        },
+        "suite/robomimic": {"study@a-raw": ["data/a"]},
+    }.items():  # fmt: skip
+        (tmp_path / folder).mkdir(parents=True, exist_ok=True)
+        names = {n.split("@")[0] for n in stages}
+        (tmp_path / folder / "dvc.yaml").write_text(
+            "stages:\n"
+            + "".join(f"  {n}:\n    wdir: {'../' * folder.count('/')}..\n" for n in names)
+        )
+        lock = "schema: '2.0'\nstages:\n"
+        for name, deps in stages.items():
+            out = "data/" + name.split("@")[1] if "@" in name else "data/report"
+            metrics = f"suite/metrics/{name.replace('@', '_')}.json"
+            timings = tmp_path / timings_file(metrics)
+            timings.parent.mkdir(parents=True, exist_ok=True)
+            timings.write_text(json.dumps({"wall_seconds": seconds.get(name, 0.0)}))
+            lock += f"  {name}:\n    deps:\n" + "".join(f"    - path: {d}\n" for d in deps)
+            lock += f"    - path: x\n    outs:\n    - path: {out}\n    - path: {metrics}\n"
+        (tmp_path / folder / "dvc.lock").write_text(lock)
+    return tmp_path / "suite" / "dvc.lock"
+
+
+def test_a_chain_is_one_tasks_stages_in_one_file_with_all_they_read(tmp_path: Path) -> None:
+    times = {"source@a": 100.0, "source@b": 10.0, "train@a-D0": 1000.0, "train@b-D0": 2000.0,
+             "report": 5.0, "study@a-raw": 3000.0}  # fmt: skip
+    lock = _suite(tmp_path, times)
+    # the study's chain counts a's source once, and neither b nor the report
+    chains = {"suite:a": 1100.0, "suite:b": 2010.0, "suite/robomimic:a": 3100.0}
+    assert chain_seconds(lock) == chains
+    assert pipeline_seconds(lock) == sum(times.values())
+    page = tmp_path / "docs" / "page.md"
+    page.parent.mkdir()
+    page.write_text(
+        "About 1 h 40 min in all, its longest chain about 52 min ([lock](../suite/dvc.lock)).\n"
+        "\nIts longest chain takes about 40 min ([lock](../suite/dvc.lock)).\n"
+    )
+    assert [p.split(" -> ")[1] for p in unbacked(page, root=tmp_path)] == [
+        "'40 min' is not in suite/dvc.lock"
+    ]
+
+
+# A chain runs end to end in one sitting on 2 cores: 2 h, leaving a 3-hour session the time
+# to check and commit its lock whole; the image agents' pipeline is one chain of 2.5 h.
+CHAIN_HOURS = {"images/dvc.lock": 2.5}
+
+
+@pytest.mark.parametrize(
+    "lock", [p.replace("dvc.yaml", "dvc.lock") for p in PIPELINES if p.count("/") <= 1]
+)  # a study's lock is in its pipeline's chains
+def test_each_chain_fits_one_sitting(lock: str) -> None:
+    limit = CHAIN_HOURS.get(lock, 2.0)
+    over = {
+        c: round(s / 3600, 2) for c, s in chain_seconds(REPO / lock).items() if s > limit * 3600
+    }
+    assert not over, f"{lock}: chains over {limit} h on 2 cores: {over}"
