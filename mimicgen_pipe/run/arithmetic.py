@@ -1,10 +1,12 @@
 """The numeric libraries' code paths, pinned before they load, so that one CPU type gives
 the same bytes run after run and machine after machine.
 
-numpy, the OpenBLAS inside numpy's wheel, torch's own kernels, MKL (torch's BLAS) and oneDNN
-(torch's LSTM and linear layers) each choose their code path at run time from the CPU they
-find. Paths of one library agree to within rounding, not to the bit: an FMA or an AVX-512
-kernel sums in another order or rounds once instead of twice. Left to choose, a source
+numpy, the OpenBLAS inside numpy's wheel, torch's own kernels, MKL (whose vector math
+library computes torch's float sin, cos, acos, tanh and sqrt; no BLAS call reaches it on the
+data path) and oneDNN (torch's LSTM and linear layers) each choose their code path at run
+time from the CPU they find. Paths of one library agree to within rounding, not to the bit:
+an FMA or an AVX-512 kernel sums in another order or rounds once instead of twice, and a
+vector math kernel rounds another last bit. Left to choose, a source
 demo's 4x4 pose products (numpy -> OpenBLAS dgemm) and every training step come out with
 other last bits on another CPU type, and so does every hash downstream in ``dvc.lock``.
 
@@ -13,8 +15,9 @@ x86-64 server CPU since 2013-2015 has). It must run before numpy or torch is imp
 ``mimicgen-pipe`` calls it first, and child processes (workers, the motion planner, Ray's
 local workers) inherit the environment it sets. Measured: an AMD Zen 3 (the committed locks'
 type) gives the same bytes with and without it; an Intel Xeon with AVX-512 gives other bytes
-than Zen 3 with it, through MKL, whose ``MKL_CBWR`` branches are Intel's only (on another
-vendor's CPU MKL runs its own choice), so the pins do not carry bytes across vendors.
+than Zen 3 with it, through MKL's vector math, whose ``MKL_CBWR`` branches are Intel's only
+(on another vendor's CPU MKL runs its own choice), so the pins do not carry bytes across
+vendors.
 """
 
 from __future__ import annotations
