@@ -477,13 +477,17 @@ def test_a_ray_cluster_without_token_authentication_is_refused_in_one_line(work)
     assert not (work / "metrics/noauth.json").exists()
 
 
-def ray_processes(running_blocks: bool = False) -> set[int]:
-    """Pids of Ray's own processes (services and workers) on this machine; with
-    ``running_blocks``, only workers running a block (Ray titles them after the function)."""
+def ray_processes(tag: str, running_blocks: bool = False) -> set[int]:
+    """Pids of the Ray processes (services and workers) whose environment holds ``tag``
+    (``NAME=value``: Ray's services inherit the environment of the run that starts them, and
+    its workers theirs), so that another test's Ray is not counted; with ``running_blocks``,
+    only workers running a block (Ray titles them after the function)."""
     pids = set()
     for d in Path("/proc").iterdir():
         try:
             cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            if tag.encode() not in (d / "environ").read_bytes().split(b"\0"):
+                continue
         except (OSError, ValueError):
             continue
         if running_blocks:
@@ -503,15 +507,17 @@ RAY_CORE_LOG = re.compile(r"^\[\d{4}-\d\d-\d\d [\d:,]+ [DIWEF] \d+ \d+\] \w+\.cc
 def test_an_interrupted_ray_run_ends_in_one_line_and_stops_its_ray(work, sig):
     """Ctrl-C (to the process group) or SIGTERM while the local Ray it started runs blocks:
     one line, exit 128+sig, and no Ray process of its own left behind."""
-    before = ray_processes()
+    run = {"MIMICGEN_PIPE_TEST_RUN": secrets.token_hex(8)}  # marks this run's Ray processes
+    tag = "=".join(*run.items())
     (work / f"ray_{sig.name}.yaml").write_text(PARAMS + "generate: {workers: 2, executor: ray}\n")
     proc = start(work, "generate", "--params", f"ray_{sig.name}.yaml", "--variant", "D0",
                  "--parsed", "data/parsed/stack.zarr", "--attempts", "400", "--out",
-                 f"data/ray_{sig.name}/stack_D0.zarr", "--metrics", "metrics/r.json")  # fmt: skip
+                 f"data/ray_{sig.name}/stack_D0.zarr", "--metrics", "metrics/r.json",
+                 env=run)  # fmt: skip
     # a block running means ray.init has returned: until then Ray's crash reporter stands in
     # front of SIGTERM and prints a stack dump (the stage puts its own handler back after it)
     t0 = time.monotonic()
-    while not any(p not in before for p in ray_processes(running_blocks=True) if alive(p)):
+    while not any(alive(p) for p in ray_processes(tag, running_blocks=True)):
         assert proc.poll() is None and time.monotonic() - t0 < 120
         time.sleep(0.1)
     time.sleep(1.0)
@@ -528,5 +534,8 @@ def test_an_interrupted_ray_run_ends_in_one_line_and_stops_its_ray(work, sig):
     assert len(lines) == 1 and "Traceback" not in err, lines
     assert lines[0].startswith(f"mimicgen-pipe generate: interrupted ({sig.name}) after ")
     assert own_lines(err)[-1] == lines[0]
-    time.sleep(2.0)
-    assert {p for p in ray_processes() - before if alive(p)} == set()
+    # Ray's processes take a moment to exit after the run has, longer on a loaded machine
+    t0 = time.monotonic()
+    while (left := {p for p in ray_processes(tag) if alive(p)}) and time.monotonic() - t0 < 60:
+        time.sleep(0.5)
+    assert left == set()

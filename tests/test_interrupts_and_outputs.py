@@ -36,9 +36,10 @@ def work(tmp_path_factory, pybullet_stack) -> Path:
     return work
 
 
-def start(work: Path, *args: str) -> subprocess.Popen:
-    """``mimicgen-pipe`` in its own process group (a terminal's Ctrl-C signals a group)."""
-    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONWARNINGS="ignore")
+def start(work: Path, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """``mimicgen-pipe`` in its own process group (a terminal's Ctrl-C signals a group), with
+    ``env`` added to the environment."""
+    env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONWARNINGS="ignore", **(env or {}))
     return subprocess.Popen(
         [sys.executable, "-m", "mimicgen_pipe.cli", *args],
         cwd=work,
