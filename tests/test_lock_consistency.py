@@ -28,19 +28,6 @@ PIPELINES = (
     "images/dvc.yaml",
 )
 
-# Edges of the suite's locks made from stores the locks no longer hold: their producers were
-# re-run on another CPU type and these consumers were not. Each task chain leaves this list
-# when it is re-run whole; an edge joins it only beside such a re-run, its reason said there.
-STALE_SUITE_EDGES = frozenset(
-    (stage, "data/export/suite/drawer_cleanup_D0")
-    # drawer_cleanup's chain was re-run whole; its robomimic policies, which wait for a
-    # re-run on the export's xyzw quaternions anyway, still hold the export before it
-    for stage in (
-        "train_suite_robomimic@drawer_cleanup-raw",
-        "train_suite_robomimic@drawer_cleanup-normalized",
-    )
-)
-
 
 def _lookup(mapping: object, dotted: str) -> object:
     for key in dotted.split("."):
@@ -105,15 +92,7 @@ def committed() -> dict[str, dict]:
 @pytest.mark.parametrize("dvc_file", PIPELINES)
 def test_each_lock_is_one_run(committed, dvc_file):
     bad = [(s, what) for f, s, what in inconsistencies(committed) if f == dvc_file]
-    if dvc_file.startswith("suite/"):
-        bad = [edge for edge in bad if edge not in STALE_SUITE_EDGES]
     assert not bad, f"{dvc_file}: stages recorded inputs their producers no longer hold: {bad}"
-
-
-def test_the_suites_stale_edges_are_still_stale(committed):
-    """An edge re-run into consistency must leave STALE_SUITE_EDGES, so the list only shrinks."""
-    stale = {(s, what) for f, s, what in inconsistencies(committed) if f.startswith("suite/")}
-    assert STALE_SUITE_EDGES <= stale, sorted(STALE_SUITE_EDGES - stale)
 
 
 def _quickstart(found: list[tuple[str, str, str]]) -> list[tuple[str, str, str]]:
