@@ -40,13 +40,9 @@ import re
 from pathlib import Path
 
 import pytest
-import yaml
 
 from mimicgen_pipe.data.metrics import timings_file
-from tests.test_lock_consistency import PIPELINES, _wdirs
-
-# the suite's lock is large: libyaml's loader reads it in a fraction of the pure-Python time
-_Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+from tests.test_lock_consistency import PIPELINES, LockGraph, Stage, lock_graph, locks
 
 REPO = Path(__file__).resolve().parents[1]
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
@@ -179,16 +175,14 @@ def _root(path: Path) -> Path:
     return root
 
 
-def _pipeline_locks(lock: Path) -> list[Path]:
-    """``lock`` and the locks of its pipeline's studies (``suite/<study>/dvc.lock``),
-    resolved."""
-    lock = lock.resolve()
-    studies = sorted(lock.parent.glob("*/dvc.lock")) if lock.parent != _root(lock) else []
-    return [lock, *studies]
-
-
-def _stages(lock: Path) -> dict[str, dict]:
-    return yaml.load(lock.read_text(), Loader=_Loader)["stages"]
+def _pipeline_files(lock: Path) -> list[str]:
+    """The ``dvc.yaml`` of ``lock``'s pipeline and of its studies (``suite/<study>/``), from
+    the repository root."""
+    root, folder = _root(lock), lock.resolve().parent
+    studies = sorted(folder.glob("*/dvc.lock")) if folder != root else []
+    return [
+        (p.parent / "dvc.yaml").relative_to(root).as_posix() for p in (lock.resolve(), *studies)
+    ]
 
 
 def stage_seconds(wdir: Path, stage: dict) -> float:
@@ -211,60 +205,21 @@ def stage_seconds(wdir: Path, stage: dict) -> float:
     return total
 
 
-Stage = tuple[Path, str]  # (its lock, its name)
-
-
-@dataclasses.dataclass(frozen=True)
-class Locks:
-    """Every pipeline's lock under one root, as a graph of stages."""
-
-    wdir: dict[Stage, Path]  # where a stage runs: its paths are relative to it
-    body: dict[Stage, dict]  # its lock entry
-    producer: dict[Path, Stage]  # an output's absolute path -> the stage that writes it
-
-    def seconds(self, key: Stage) -> float:
-        return stage_seconds(self.wdir[key], self.body[key])
-
-    def upstream(self, key: Stage, seen: set[Stage]) -> set[Stage]:
-        """``seen`` with ``key`` and every stage upstream of it added."""
-        if key not in seen:
-            seen.add(key)
-            for dep in self.body[key].get("deps") or ():
-                path = (self.wdir[key] / dep["path"]).resolve()
-                # a dep inside an output folder (a store's file) is that folder's
-                up = next(
-                    (self.producer[p] for p in (path, *path.parents) if p in self.producer), None
-                )
-                if up is not None:
-                    self.upstream(up, seen)
-        return seen
-
-
 @functools.cache
-def all_locks(root: Path) -> Locks:
-    """The locks of ``PIPELINES`` under ``root`` that exist."""
-    wdir: dict[Stage, Path] = {}
-    body: dict[Stage, dict] = {}
-    producer: dict[Path, Stage] = {}
-    for dvc_file in PIPELINES:
-        lock = (root / dvc_file).with_name("dvc.lock").resolve()
-        if not lock.is_file():
-            continue
-        wdirs = _wdirs(root / dvc_file) if (root / dvc_file).is_file() else {}
-        for name, entry in _stages(lock).items():
-            key = (lock, name)
-            wdir[key] = wdirs.get(name.split("@")[0], lock.parent)
-            body[key] = entry
-            for out in entry.get("outs") or ():
-                producer[(wdir[key] / out["path"]).resolve()] = key
-    return Locks(wdir, body, producer)
+def all_locks(root: Path) -> LockGraph:
+    """The graph of every pipeline's lock under ``root``."""
+    return lock_graph(locks(root), root)
+
+
+def _seconds(graph: LockGraph, key: Stage) -> float:
+    return stage_seconds(graph.wdir[key], graph.body[key])
 
 
 def pipeline_seconds(lock: Path) -> float:
     """The sum of ``stage_seconds`` over the stages of ``lock`` and of its pipeline's
     studies (rule 5)."""
-    graph = all_locks(_root(lock))
-    return sum(graph.seconds((one, name)) for one in _pipeline_locks(lock) for name in _stages(one))
+    graph, files = all_locks(_root(lock)), _pipeline_files(lock)
+    return sum(_seconds(graph, key) for key in graph.body if key[0] in files)
 
 
 @functools.cache
@@ -275,21 +230,22 @@ def chain_seconds(lock: Path) -> dict[str, float]:
     are one chain, the suite's own stages of that task another; a stage's task is its matrix
     key up to the first ``-``; its report, which reads every task, is no task's); every
     other pipeline is one chain."""
-    root = _root(lock)
-    graph = all_locks(root)
-    per_task = lock.resolve().parent.relative_to(root).as_posix() == "suite"
+    graph, files = all_locks(_root(lock)), _pipeline_files(lock)
+    per_task = files[0] == "suite/dvc.yaml"
     chains: dict[str, set[Stage]] = {}
-    for one in _pipeline_locks(lock):
-        folder = one.parent.relative_to(root).as_posix()
-        for name in _stages(one):
-            if not per_task:
-                chain = folder
-            elif "@" in name:
-                chain = f"{folder}:{name.split('@')[1].split('-')[0]}"
-            else:
-                continue
-            graph.upstream((one, name), chains.setdefault(chain, set()))
-    return {chain: sum(map(graph.seconds, keys)) for chain, keys in chains.items()}
+    for key in graph.body:
+        dvc_file, name = key
+        if dvc_file not in files:
+            continue
+        folder = Path(dvc_file).parent.as_posix()
+        if not per_task:
+            chain = folder
+        elif "@" in name:
+            chain = f"{folder}:{name.split('@')[1].split('-')[0]}"
+        else:
+            continue
+        graph.upstream(key, chains.setdefault(chain, set()))
+    return {chain: sum(_seconds(graph, k) for k in keys) for chain, keys in chains.items()}
 
 
 def _near(values: list[float], x: float, tol: float) -> bool:

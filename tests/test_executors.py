@@ -28,7 +28,7 @@ import zarr
 from mimicgen_pipe.run.executors import Executor, map_blocks
 from mimicgen_pipe.run.resume import WorkDir, code_digest, work_dir_of
 from tests.conftest import PYBULLET_STACK, REPO, cli, stages_copied_to
-from tests.test_interrupts_and_outputs import alive, children, own_lines, start
+from tests.test_interrupts_and_outputs import alive, children, own_lines, seconds_until_gone, start
 from tests.test_store_integrity import tree_digest
 
 # ---- map_blocks and work directories (no simulator) ----
@@ -535,7 +535,6 @@ def test_an_interrupted_ray_run_ends_in_one_line_and_stops_its_ray(work, sig):
     assert lines[0].startswith(f"mimicgen-pipe generate: interrupted ({sig.name}) after ")
     assert own_lines(err)[-1] == lines[0]
     # Ray's processes take a moment to exit after the run has, longer on a loaded machine
-    t0 = time.monotonic()
-    while (left := {p for p in ray_processes(tag) if alive(p)}) and time.monotonic() - t0 < 60:
-        time.sleep(0.5)
-    assert left == set()
+    left = ray_processes(tag)
+    assert seconds_until_gone(left, timeout=60.0) < 60.0, sorted(left)
+    assert {p for p in ray_processes(tag) if alive(p)} == set()

@@ -5,6 +5,7 @@ the value in the params file now. Reads the locks as plain YAML (no DVC, no simu
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import importlib.util
 from pathlib import Path
@@ -51,36 +52,74 @@ def _params(path: Path) -> object:
 
 
 def locks(root: Path = REPO) -> dict[str, dict]:
-    """Each pipeline's lock, ``dvc.yaml`` path -> parsed ``dvc.lock``."""
-    return {f: yaml.load((root / f).with_name("dvc.lock").read_text(), _Loader) for f in PIPELINES}
+    """Each pipeline's lock that exists, ``dvc.yaml`` path -> parsed ``dvc.lock``."""
+    return {
+        f: yaml.load((root / f).with_name("dvc.lock").read_text(), _Loader)
+        for f in PIPELINES
+        if (root / f).with_name("dvc.lock").is_file()
+    }
+
+
+Stage = tuple[str, str]  # (its pipeline's dvc.yaml, its name)
+
+
+@dataclasses.dataclass(frozen=True)
+class LockGraph:
+    """Parsed locks as a graph of stages, across pipelines (a stage may read another
+    pipeline's store)."""
+
+    wdir: dict[Stage, Path]  # where a stage runs: its lock's paths are relative to it
+    body: dict[Stage, dict]  # its lock entry
+    producer: dict[Path, Stage]  # an output's absolute path -> the stage that records it
+    md5: dict[Path, str | None]  # an output's absolute path -> the md5 recorded for it
+
+    def upstream(self, key: Stage, seen: set[Stage]) -> set[Stage]:
+        """``seen`` with ``key`` and every stage upstream of it added."""
+        if key not in seen:
+            seen.add(key)
+            for dep in self.body[key].get("deps") or ():
+                path = (self.wdir[key] / dep["path"]).resolve()
+                # a dep inside an output folder (a store's file) is that folder's
+                up = next(
+                    (self.producer[p] for p in (path, *path.parents) if p in self.producer), None
+                )
+                if up is not None:
+                    self.upstream(up, seen)
+        return seen
+
+
+def lock_graph(found: dict[str, dict], root: Path = REPO) -> LockGraph:
+    """The graph of the parsed locks ``found`` (``dvc.yaml`` path -> lock) under ``root``."""
+    graph = LockGraph({}, {}, {}, {})
+    for dvc_file, lock in found.items():
+        wdirs = _wdirs(root / dvc_file) if (root / dvc_file).is_file() else {}
+        for stage, body in (lock.get("stages") or {}).items():
+            key = (dvc_file, stage)
+            wdir = wdirs.get(stage.split("@")[0], (root / dvc_file).parent.resolve())
+            graph.wdir[key], graph.body[key] = wdir, body
+            for out in body.get("outs") or ():
+                path = (wdir / out["path"]).resolve()
+                graph.producer[path], graph.md5[path] = key, out.get("md5")
+    return graph
 
 
 def inconsistencies(found: dict[str, dict], root: Path = REPO) -> list[tuple[str, str, str]]:
     """``(pipeline, stage, what)`` for every lock edge whose recorded dependency md5 differs
     from its producer's recorded output md5 (across all pipelines: a stage may read another
     pipeline's store), and every recorded params value that differs from its file."""
-    produced: dict[Path, str | None] = {}
-    where: dict[tuple[str, str], Path] = {}
-    for dvc_file, lock in found.items():
-        wdirs = _wdirs(root / dvc_file)
-        for stage, body in (lock.get("stages") or {}).items():
-            wdir = wdirs.get(stage.split("@")[0], (root / dvc_file).parent.resolve())
-            where[dvc_file, stage] = wdir
-            for out in body.get("outs") or ():
-                produced[(wdir / out["path"]).resolve()] = out.get("md5")
+    graph = lock_graph(found, root)
     bad = []
-    for dvc_file, lock in found.items():
-        for stage, body in (lock.get("stages") or {}).items():
-            wdir = where[dvc_file, stage]
-            for dep in body.get("deps") or ():
-                path = (wdir / dep["path"]).resolve()
-                if path in produced and produced[path] != dep.get("md5"):
-                    bad.append((dvc_file, stage, dep["path"]))
-            for params_file, values in (body.get("params") or {}).items():
-                current = _params(wdir / params_file)
-                for key, value in values.items():
-                    if _lookup(current, key) != value:
-                        bad.append((dvc_file, stage, f"{params_file}:{key}"))
+    for (dvc_file, stage), body in graph.body.items():
+        wdir = graph.wdir[dvc_file, stage]
+        for dep in body.get("deps") or ():
+            path = (wdir / dep["path"]).resolve()
+            if path in graph.md5 and graph.md5[path] != dep.get("md5"):
+                bad.append((dvc_file, stage, dep["path"]))
+        for params_file, values in (body.get("params") or {}).items():
+            current = _params(wdir / params_file)
+            for key, value in values.items():
+                if _lookup(current, key) != value:
+                    bad.append((dvc_file, stage, f"{params_file}:{key}"))
     return bad
 
 
